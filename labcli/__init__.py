@@ -1,0 +1,8 @@
+"""lab: train, play and export RL policies for MuJoCo robots with the learning library you prefer."""
+
+from importlib.metadata import PackageNotFoundError, version
+
+try:
+    __version__ = version("lab")
+except PackageNotFoundError:  # running from a source tree that was never installed
+    __version__ = "0.0.0+unknown"

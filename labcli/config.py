@@ -1,0 +1,103 @@
+"""Resolve env and agent configs: defaults ← task's per-framework defaults ← file ← --set."""
+
+from __future__ import annotations
+
+import copy
+import difflib
+from collections.abc import Iterable, Mapping
+from pathlib import Path
+from typing import Any
+
+import yaml
+from pydantic import BaseModel, ValidationError
+
+from labcli.errors import LabError
+
+SECTIONS = ("env", "agent")
+
+
+def parse_set(items: Iterable[str]) -> dict[str, dict[str, Any]]:
+    """`["env.num_envs=8", "agent.learning_rate=3e-4"]` → nested dicts per section. Values are
+    read as YAML (numbers, booleans, lists); pydantic then checks them against the models."""
+    out: dict[str, dict[str, Any]] = {s: {} for s in SECTIONS}
+    for item in items:
+        key, sep, raw = item.partition("=")
+        key = key.strip()
+        section, _, path = key.partition(".")
+        if not sep or section not in SECTIONS or not path:
+            raise LabError(f"--set '{item}' is not SECTION.KEY=VALUE",
+                           "e.g. --set agent.learning_rate=3e-4 or --set env.num_envs=32")
+        try:
+            value = yaml.safe_load(raw) if raw.strip() else ""
+        except yaml.YAMLError:
+            value = raw
+        _set_path(out[section], path.split("."), value)
+    return out
+
+
+def _set_path(tree: dict[str, Any], keys: list[str], value: Any) -> None:
+    for key in keys[:-1]:
+        tree = tree.setdefault(key, {})
+    tree[keys[-1]] = value
+
+
+def load_file(path: Path) -> dict[str, dict[str, Any]]:
+    try:
+        data = yaml.safe_load(path.read_text()) or {}
+    except FileNotFoundError as exc:
+        raise LabError(f"config file {path} does not exist") from exc
+    except yaml.YAMLError as exc:
+        raise LabError(f"config file {path} is not valid YAML: {str(exc).splitlines()[0]}") from exc
+    if not isinstance(data, dict) or set(data) - set(SECTIONS):
+        raise LabError(f"config file {path} must be a mapping with keys 'env' and/or 'agent'")
+    return {s: data.get(s) or {} for s in SECTIONS}
+
+
+def merge(base: Mapping[str, Any], override: Mapping[str, Any]) -> dict[str, Any]:
+    """Deep-merge `override` into a copy of `base`."""
+    out = copy.deepcopy(dict(base))
+    for key, value in override.items():
+        if isinstance(value, Mapping) and isinstance(out.get(key), Mapping):
+            out[key] = merge(out[key], value)
+        else:
+            out[key] = copy.deepcopy(value)
+    return out
+
+
+def build(model: type[BaseModel], section: str, layers: Iterable[Mapping[str, Any]]) -> BaseModel:
+    """Validate the merged `layers` as `model`; a bad key or value becomes one clear LabError."""
+    data: dict[str, Any] = {}
+    for layer in layers:
+        data = merge(data, layer)
+    # Dict-valued fields (reward weights) merge over their defaults rather than replace them.
+    defaults = model().model_dump()
+    for key, value in data.items():
+        if isinstance(value, Mapping) and isinstance(defaults.get(key), dict):
+            data[key] = merge(defaults[key], value)
+    try:
+        return model.model_validate(data)
+    except ValidationError as exc:
+        raise _explain(exc, model, section) from None
+
+
+def _explain(exc: ValidationError, model: type[BaseModel], section: str) -> LabError:
+    err = exc.errors()[0]
+    key = ".".join([section, *(str(p) for p in err["loc"])])
+    if err["type"] == "extra_forbidden":
+        fields = sorted(model.model_fields)
+        close = difflib.get_close_matches(str(err["loc"][-1]), fields, n=1)
+        hint = f"did you mean '{section}.{close[0]}'? " if close else ""
+        return LabError(f"unknown key '{key}'",
+                        hint + f"keys of {section}: {', '.join(fields)}")
+    field = model.model_fields.get(str(err["loc"][0]))
+    expected = _type_name(field.annotation) if field else "a valid value"
+    return LabError(f"bad value for '{key}': {err['msg']} (got {err.get('input')!r})",
+                    f"expected {expected}")
+
+
+def _type_name(annotation: Any) -> str:
+    return getattr(annotation, "__name__", None) or str(annotation).replace("typing.", "")
+
+
+def to_yaml(model: BaseModel) -> str:
+    return yaml.safe_dump(model.model_dump(mode="json"), sort_keys=False)

@@ -1,0 +1,165 @@
+"""The batched environment: a gymnasium VectorEnv whose arrays are torch tensors `[num_envs, ...]`."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import gymnasium as gym
+import mujoco
+import numpy as np
+import torch
+from gymnasium.vector import AutoresetMode
+from gymnasium.vector.utils import batch_space
+
+from labcli import metrics
+from labcli.errors import LabError
+from labcli.sim import default_backend, make_sim
+from labcli.task import TaskConfig, TaskSpec
+
+UNSTABLE = "unstable"
+
+
+class LabVecEnv(gym.vector.VectorEnv):
+    """Steps all envs at once; ended envs reset in the same step (`info["final_obs"]` keeps
+    their last observation). Episode statistics accumulate on the device and are read once per
+    training iteration with `pop_stats()`, so stepping never waits on the host."""
+
+    metadata = {"autoreset_mode": AutoresetMode.SAME_STEP}
+    render_mode = None
+
+    def __init__(self, spec: TaskSpec, cfg: TaskConfig, *, backend: str | None = None,
+                 device: str = "cpu", seed: int = 0, nthread: int | None = None):
+        self.task_spec = spec
+        self.cfg = cfg
+        model = mujoco.MjModel.from_xml_path(str(spec.model))
+        if cfg.sim_dt is not None:
+            model.opt.timestep = cfg.sim_dt
+        self.backend = backend or default_backend()
+        self.sim = make_sim(self.backend, model, cfg.num_envs, device, nthread)
+        self.task = spec.task(cfg, self.sim)
+        self.num_envs = cfg.num_envs
+        self.device = self.sim.device
+        self.step_dt = model.opt.timestep * cfg.decimation
+        self.max_episode_length = math.ceil(cfg.episode_length_s / self.step_dt)
+
+        self.observation_names = list(self.task.observation_names)
+        self.action_names = list(self.task.action_names)
+        self.single_observation_space = gym.spaces.Box(
+            -np.inf, np.inf, (len(self.observation_names),), np.float32)
+        self.single_action_space = gym.spaces.Box(-1.0, 1.0, (len(self.action_names),), np.float32)
+        self.observation_space = batch_space(self.single_observation_space, self.num_envs)
+        self.action_space = batch_space(self.single_action_space, self.num_envs)
+
+        self.reward_names = list(cfg.reward_weights)
+        term_names = set(self.task.reward_terms())
+        if term_names != set(self.reward_names):
+            raise LabError(
+                f"task '{spec.name}' computes reward terms {sorted(term_names)} but its config "
+                f"weighs {sorted(self.reward_names)}",
+                "give reward_weights exactly one entry per reward term")
+        self._weights = torch.tensor([cfg.reward_weights[k] for k in self.reward_names],
+                                     device=self.device)
+        self.termination_names = [*self.task.terminations(), UNSTABLE]
+        self.generator = torch.Generator(self.device)
+        self.generator.manual_seed(seed)
+
+        n, dev = self.num_envs, self.device
+        self.episode_length = torch.zeros(n, dtype=torch.long, device=dev)
+        self.episode_return = torch.zeros(n, device=dev)
+        self.episode_terms = torch.zeros(n, len(self.reward_names), device=dev)
+        self._stats = torch.zeros(4 + len(self.reward_names) + len(self.termination_names),
+                                  dtype=torch.float64, device=dev)
+        self._all = torch.ones(n, dtype=torch.bool, device=dev)
+
+    # gymnasium API ---------------------------------------------------------------------------
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
+        if seed is not None:
+            self.generator.manual_seed(seed)
+        self._reset_envs(self._all)
+        self._stats.zero_()
+        return self._observations(), {}
+
+    def step(self, actions: torch.Tensor):
+        actions = torch.as_tensor(actions, device=self.device, dtype=torch.float32)
+        bad_action = ~torch.isfinite(actions).all(dim=1)
+        self.task.apply_actions(actions.nan_to_num(0.0).clamp(-1.0, 1.0))
+        self.sim.step(self.cfg.decimation)
+        self.episode_length += 1
+
+        causes = self.task.terminations()
+        unstable = self.sim.unstable() | bad_action
+        terminated = torch.stack([*causes.values(), unstable], dim=1)
+        terms = self.task.reward_terms()
+        terms = torch.stack([terms[name] for name in self.reward_names], dim=1).float()
+        # A diverged env's state is garbage: it earns nothing on its last step.
+        weighted = (terms * self._weights).nan_to_num(0.0, 0.0, 0.0) * ~unstable[:, None]
+        reward = weighted.sum(dim=1)
+        self.episode_return += reward
+        self.episode_terms += weighted
+
+        time_out = self.episode_length >= self.max_episode_length
+        terminated_any = terminated.any(dim=1)
+        truncated = time_out & ~terminated_any
+        done = terminated_any | truncated
+        final_obs = self._observations()
+        success = self.task.success(truncated) & truncated
+        episode = {"r": self.episode_return.clone(), "l": self.episode_length.clone(),
+                   "success": success}
+        self._accumulate(done, success, terminated)
+
+        self._reset_envs(done)
+        obs = self._observations()
+        info = {"final_obs": final_obs, "_final_obs": done, "episode": episode, "_episode": done}
+        return obs, reward, terminated_any, truncated, info
+
+    def close(self, **kwargs: Any) -> None:
+        self.sim.close()
+
+    # statistics ------------------------------------------------------------------------------
+    def _accumulate(self, done: torch.Tensor, success: torch.Tensor,
+                    terminated: torch.Tensor) -> None:
+        d = done.double()
+        row = torch.cat([
+            d.sum().view(1),
+            (self.episode_return * d).sum().view(1),
+            (self.episode_length * d).sum().view(1),
+            success.double().sum().view(1),
+            (self.episode_terms * d[:, None]).sum(dim=0),
+            terminated.double().sum(dim=0),
+        ])
+        self._stats += row
+
+    def pop_stats(self) -> dict[str, float]:
+        """Means over the episodes that ended since the last call, under `metrics` tags; empty
+        when none ended. One host sync: call it once per training iteration, not per step."""
+        values = self._stats.tolist()
+        self._stats.zero_()
+        count = values[0]
+        if count == 0:
+            return {}
+        k = len(self.reward_names)
+        stats = {
+            metrics.EPISODES: count,
+            metrics.MEAN_RETURN: values[1] / count,
+            metrics.MEAN_LENGTH: values[2] / count,
+            metrics.SUCCESS_RATE: values[3] / count,
+        }
+        for name, total in zip(self.reward_names, values[4:4 + k], strict=True):
+            stats[metrics.REWARD_TERM + name] = total / count
+        for name, total in zip(self.termination_names, values[4 + k:], strict=True):
+            stats[metrics.TERMINATION + name] = total / count
+        stats[metrics.INSTABILITIES] = values[-1]
+        return stats
+
+    # internals -------------------------------------------------------------------------------
+    def _reset_envs(self, mask: torch.Tensor) -> None:
+        self.sim.reset_to_defaults(mask)
+        self.task.reset(mask, self.generator)
+        keep = ~mask
+        self.episode_length *= keep
+        self.episode_return *= keep
+        self.episode_terms *= keep[:, None]
+
+    def _observations(self) -> torch.Tensor:
+        return self.task.observations().to(torch.float32).nan_to_num(0.0, 0.0, 0.0)

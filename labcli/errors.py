@@ -1,0 +1,27 @@
+"""The one error type users see: a message and a hint, printed as one line with exit code 2."""
+
+from __future__ import annotations
+
+import difflib
+from collections.abc import Iterable
+
+
+class LabError(Exception):
+    """Bad input or state the user can fix; anything else is a bug and keeps its traceback."""
+
+    def __init__(self, message: str, hint: str | None = None):
+        super().__init__(message)
+        self.message = message
+        self.hint = hint
+
+    def __str__(self) -> str:
+        return f"{self.message} ({self.hint})" if self.hint else self.message
+
+
+def unknown_name(kind: str, name: str, known: Iterable[str]) -> LabError:
+    """An error for a name that is not among `known`, suggesting the closest one."""
+    known = sorted(known)
+    close = difflib.get_close_matches(name, known, n=1)
+    hint = f"did you mean '{close[0]}'? " if close else ""
+    hint += f"known {kind}s: {', '.join(known) if known else 'none'}"
+    return LabError(f"unknown {kind} '{name}'", hint)

@@ -1,0 +1,117 @@
+"""The public framework-plugin API: what a learning library provides to `lab`.
+
+A framework plugin registers one `Framework` instance (its name, agent config, wrappers,
+`train`, `load_policy`) and the wrappers it builds on (its adapter first). Every framework
+runs under the same `lab train/play/export` commands and the same run layout.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, ClassVar
+
+import torch
+from pydantic import BaseModel, ConfigDict, Field
+from torch import nn
+
+from labcli.wrappers import Step, WrapperSpec
+
+if TYPE_CHECKING:
+    from labcli.env import LabVecEnv
+    from labcli.training import TrainContext
+
+
+class AgentConfig(BaseModel):
+    """Settings every framework has; a plugin subclasses it with its library's hyperparameters."""
+
+    model_config = ConfigDict(extra="forbid", validate_assignment=True)
+
+    max_iterations: int = Field(100, gt=0, description="rollout + update cycles in total")
+    save_interval: int = Field(50, gt=0, description="iterations between checkpoints")
+
+
+class ObsNormalizer(nn.Module):
+    """(obs - mean) / sqrt(var + eps), clipped: the frozen form of a running normalizer."""
+
+    def __init__(self, mean: torch.Tensor, var: torch.Tensor, eps: float, clip: float | None):
+        super().__init__()
+        self.register_buffer("mean", torch.as_tensor(mean, dtype=torch.float32).clone())
+        self.register_buffer("std", torch.sqrt(torch.as_tensor(var, dtype=torch.float32) + eps))
+        self.clip = clip
+
+    def forward(self, obs: torch.Tensor) -> torch.Tensor:
+        out = (obs - self.mean) / self.std
+        return out if self.clip is None else out.clamp(-self.clip, self.clip)
+
+
+class Policy(nn.Module):
+    """Observation → deterministic action in [-1, 1], with the observation normalizer inside,
+    so that what is played and exported is exactly what was trained."""
+
+    def __init__(self, actor: nn.Module, normalizer: nn.Module | None = None):
+        super().__init__()
+        self.normalizer = normalizer if normalizer is not None else nn.Identity()
+        self.actor = actor
+
+    def forward(self, obs: torch.Tensor) -> torch.Tensor:
+        return self.actor(self.normalizer(obs)).clamp(-1.0, 1.0)
+
+
+@dataclass
+class Checkpoint:
+    path: Path
+    iteration: int
+
+
+class Framework:
+    """Base class of framework plugins. Subclasses set the class attributes and override
+    `pipeline`, `train` and `load_policy`."""
+
+    name: ClassVar[str]
+    description: ClassVar[str] = ""
+    agent_config: ClassVar[type[AgentConfig]] = AgentConfig
+    # Checkpoint files are `<prefix><iteration><suffix>` in the run dir, e.g. model_50.zip.
+    checkpoint_prefix: ClassVar[str] = "model_"
+    checkpoint_suffix: ClassVar[str] = ".pt"
+
+    def wrappers(self) -> Sequence[WrapperSpec]:
+        """The wrappers this framework owns (its adapter first); registered with the plugin."""
+        return ()
+
+    def pipeline(self, cfg: AgentConfig) -> list[Step]:
+        """The adapter and framework-stage wrappers to train with under `cfg`."""
+        raise NotImplementedError
+
+    def train(self, env: object, ctx: TrainContext) -> None:
+        """Train on the wrapped `env` until `ctx.cfg.max_iterations`, calling
+        `ctx.end_iteration` after each iteration and `ctx.save` for checkpoints."""
+        raise NotImplementedError
+
+    def load_policy(self, checkpoint: Path, env: LabVecEnv) -> Policy:
+        """Load `checkpoint` as a Policy for `env`'s observation and action spaces."""
+        raise NotImplementedError
+
+    def checkpoint_path(self, run_dir: Path, iteration: int) -> Path:
+        return run_dir / f"{self.checkpoint_prefix}{iteration}{self.checkpoint_suffix}"
+
+    def checkpoints(self, run_dir: Path) -> list[Checkpoint]:
+        """Complete checkpoints in `run_dir`, oldest first (they are written by rename)."""
+        pattern = re.compile(re.escape(self.checkpoint_prefix) + r"(\d+)"
+                             + re.escape(self.checkpoint_suffix) + "$")
+        found = []
+        for path in run_dir.glob(f"{self.checkpoint_prefix}*{self.checkpoint_suffix}"):
+            match = pattern.match(path.name)
+            if match:
+                found.append(Checkpoint(path, int(match.group(1))))
+        return sorted(found, key=lambda c: c.iteration)
+
+
+@dataclass
+class TrainResult:
+    iterations: int
+    steps: int
+    interrupted: bool = False
+    stats: dict[str, float] = field(default_factory=dict)

@@ -1,0 +1,11 @@
+"""TensorBoard tags that every framework logs the same way, so runs compare across libraries."""
+
+EPISODES = "Train/episodes"
+MEAN_RETURN = "Train/mean_reward"
+MEAN_LENGTH = "Train/mean_episode_length"
+SUCCESS_RATE = "Metrics/success_rate"
+REWARD_TERM = "Episode_Reward/"
+TERMINATION = "Episode_Termination/"
+INSTABILITIES = "sim/instabilities"
+STEPS_PER_S = "Perf/steps_per_s"
+TOTAL_STEPS = "Perf/total_steps"

@@ -1,0 +1,71 @@
+"""lab's torch VectorEnv seen through SB3's numpy VecEnv API.
+
+SB3 needs, at each done env, the true last observation (`terminal_observation`) and whether the
+episode was cut by the time limit (`TimeLimit.truncated`), so that PPO bootstraps values on
+time-outs instead of treating them as terminal.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+import torch
+from stable_baselines3.common.vec_env.base_vec_env import VecEnv
+
+
+class Sb3VecEnv(VecEnv):
+    def __init__(self, env: Any):
+        super().__init__(env.num_envs, env.single_observation_space, env.single_action_space)
+        self.env = env
+        self._actions: np.ndarray | None = None
+
+    def reset(self) -> np.ndarray:
+        seed = self._seeds[0] if self._seeds and self._seeds[0] is not None else None
+        obs, _ = self.env.reset(seed=seed)
+        self._reset_seeds()
+        return obs.cpu().numpy()
+
+    def step_async(self, actions: np.ndarray) -> None:
+        self._actions = actions
+
+    def step_wait(self):
+        actions = torch.as_tensor(self._actions, dtype=torch.float32)
+        obs, reward, terminated, truncated, info = self.env.step(actions)
+        done = (terminated | truncated).cpu().numpy()
+        infos: list[dict[str, Any]] = [{} for _ in range(self.num_envs)]
+        ended = np.flatnonzero(done)
+        if ended.size:
+            final = info["final_obs"].cpu().numpy()
+            ep = info["episode"]
+            returns, lengths = ep["r"].cpu().numpy(), ep["l"].cpu().numpy()
+            success, trunc = ep["success"].cpu().numpy(), truncated.cpu().numpy()
+            for i in ended:
+                infos[i] = {
+                    "terminal_observation": final[i],
+                    "TimeLimit.truncated": bool(trunc[i]),
+                    "episode": {"r": float(returns[i]), "l": int(lengths[i])},
+                    "is_success": bool(success[i]),
+                }
+        return obs.cpu().numpy(), reward.cpu().numpy(), done, infos
+
+    def close(self) -> None:
+        self.env.close()
+
+    def get_attr(self, attr_name: str, indices: Any = None) -> list[Any]:
+        return [getattr(self.env, attr_name)] * len(self._indices(indices))
+
+    def set_attr(self, attr_name: str, value: Any, indices: Any = None) -> None:
+        setattr(self.env, attr_name, value)
+
+    def env_method(self, method_name: str, *args: Any, indices: Any = None, **kwargs: Any):
+        raise NotImplementedError("lab envs are batched; call methods on the env itself")
+
+    def env_is_wrapped(self, wrapper_class: type, indices: Any = None) -> list[bool]:
+        return [False] * len(self._indices(indices))
+
+    def _indices(self, indices: Any) -> Sequence[int]:
+        if indices is None:
+            return range(self.num_envs)
+        return [indices] if isinstance(indices, int) else list(indices)

@@ -1,0 +1,169 @@
+"""PPO from Stable-Baselines3 behind lab's Framework API."""
+
+from __future__ import annotations
+
+import os
+import pickle
+import zipfile
+from pathlib import Path
+from typing import Any, Literal
+
+import torch
+from pydantic import Field
+from stable_baselines3 import PPO
+from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.logger import configure
+from stable_baselines3.common.vec_env import VecNormalize
+from torch import nn
+
+from labcli.errors import LabError
+from labcli.framework import AgentConfig, Framework, ObsNormalizer, Policy
+from labcli.training import TrainContext
+from labcli.wrappers import Stage, Step, WrapperSpec
+from lab_sb3.adapter import Sb3VecEnv
+
+ACTIVATIONS = {"tanh": nn.Tanh, "relu": nn.ReLU, "elu": nn.ELU}
+
+ADAPTER = WrapperSpec("sb3.adapter", Stage.ADAPTER, Sb3VecEnv, framework="sb3",
+                      description="torch VectorEnv → SB3 VecEnv (numpy), time-outs flagged")
+VEC_NORMALIZE = WrapperSpec("sb3.vec_normalize", Stage.FRAMEWORK, VecNormalize, framework="sb3",
+                            description="SB3's running observation/reward normalization")
+
+
+class Sb3PPOConfig(AgentConfig):
+    n_steps: int = Field(32, gt=0, description="steps per env per iteration")
+    batch_size: int = Field(1024, gt=0)
+    n_epochs: int = Field(5, gt=0)
+    learning_rate: float = Field(3e-4, gt=0)
+    gamma: float = Field(0.99, gt=0, le=1)
+    gae_lambda: float = Field(0.95, gt=0, le=1)
+    clip_range: float = Field(0.2, gt=0)
+    ent_coef: float = 0.0
+    vf_coef: float = 0.5
+    max_grad_norm: float = 0.5
+    target_kl: float | None = None
+    net_arch: list[int] = Field(default_factory=lambda: [64, 64])
+    activation: Literal["tanh", "relu", "elu"] = "tanh"
+    log_std_init: float = 0.0
+    normalize_obs: bool = True
+    normalize_reward: bool = False
+    clip_obs: float = Field(10.0, gt=0)
+
+
+class _LabCallback(BaseCallback):
+    """Reports each finished PPO iteration to lab and stops on Ctrl-C at the next env step."""
+
+    def __init__(self, ctx: TrainContext, save: Any):
+        super().__init__()
+        self.ctx, self.save = ctx, save
+        self.iteration = ctx.start_iteration
+        self.started = False
+
+    def _on_rollout_start(self) -> None:
+        # SB3 has no hook after the update; the next rollout's start is one.
+        if self.started:
+            self.end_iteration()
+        self.started = True
+
+    def end_iteration(self) -> None:
+        self.iteration += 1
+        self.ctx.end_iteration(self.iteration, self.model.num_timesteps, self.save)
+
+    def _on_step(self) -> bool:
+        return not self.ctx.stop_requested
+
+
+class Sb3Framework(Framework):
+    name = "sb3"
+    description = "Stable-Baselines3 PPO (numpy VecEnv; VecNormalize optional)"
+    agent_config = Sb3PPOConfig
+    checkpoint_suffix = ".zip"
+
+    def wrappers(self) -> list[WrapperSpec]:
+        return [ADAPTER, VEC_NORMALIZE]
+
+    def pipeline(self, cfg: Sb3PPOConfig) -> list[Step]:
+        steps = [Step(ADAPTER)]
+        if cfg.normalize_obs or cfg.normalize_reward:
+            steps.append(Step(VEC_NORMALIZE, {
+                "norm_obs": cfg.normalize_obs, "norm_reward": cfg.normalize_reward,
+                "clip_obs": cfg.clip_obs, "gamma": cfg.gamma}))
+        return steps
+
+    @staticmethod
+    def normalizer_path(checkpoint: Path) -> Path:
+        iteration = checkpoint.stem.rsplit("_", 1)[-1]
+        return checkpoint.with_name(f"vecnormalize_{iteration}.pkl")
+
+    def train(self, env: Any, ctx: TrainContext) -> None:
+        cfg: Sb3PPOConfig = ctx.cfg  # type: ignore[assignment]
+        if ctx.resume is not None:
+            model = PPO.load(ctx.resume.path, env=env, device=ctx.device)
+            if isinstance(env, VecNormalize):
+                saved = _load_normalizer(self.normalizer_path(ctx.resume.path))
+                env.obs_rms, env.ret_rms = saved.obs_rms, saved.ret_rms
+        else:
+            model = PPO(
+                "MlpPolicy", env, n_steps=cfg.n_steps, batch_size=cfg.batch_size,
+                n_epochs=cfg.n_epochs, learning_rate=cfg.learning_rate, gamma=cfg.gamma,
+                gae_lambda=cfg.gae_lambda, clip_range=cfg.clip_range, ent_coef=cfg.ent_coef,
+                vf_coef=cfg.vf_coef, max_grad_norm=cfg.max_grad_norm, target_kl=cfg.target_kl,
+                policy_kwargs={"net_arch": list(cfg.net_arch),
+                               "activation_fn": ACTIVATIONS[cfg.activation],
+                               "log_std_init": cfg.log_std_init},
+                seed=ctx.seed, device=ctx.device, verbose=0)
+        model.set_logger(configure(str(ctx.run_dir), ["tensorboard"]))
+
+        def save(path: Path) -> None:
+            if isinstance(env, VecNormalize):
+                target = self.normalizer_path(self.checkpoint_path(ctx.run_dir, ctx.iteration))
+                tmp = target.with_name(f".tmp_{target.name}")
+                env.save(tmp)
+                os.replace(tmp, target)
+            model.save(path)
+
+        callback = _LabCallback(ctx, save)
+        remaining = cfg.max_iterations - ctx.start_iteration
+        model.learn(total_timesteps=remaining * cfg.n_steps * env.num_envs, callback=callback,
+                    reset_num_timesteps=ctx.resume is None, progress_bar=False)
+        if not ctx.stop_requested:
+            callback.end_iteration()  # the last update has no next rollout start
+        ctx.save(save)
+
+    def load_policy(self, checkpoint: Path, env: Any) -> Policy:
+        try:
+            model = PPO.load(checkpoint, device="cpu")
+        except (zipfile.BadZipFile, ValueError, KeyError, EOFError, RuntimeError) as exc:
+            raise LabError(f"checkpoint {checkpoint} is not a loadable SB3 model: {exc}",
+                           "pick another checkpoint with --checkpoint") from exc
+        _check_spaces(checkpoint, model, env)
+        policy = model.policy
+        actor = nn.Sequential(policy.mlp_extractor.policy_net, policy.action_net)
+        normalizer = None
+        pkl = self.normalizer_path(checkpoint)
+        if pkl.is_file():
+            vn = _load_normalizer(pkl)
+            if vn.norm_obs:
+                normalizer = ObsNormalizer(torch.as_tensor(vn.obs_rms.mean),
+                                           torch.as_tensor(vn.obs_rms.var), vn.epsilon, vn.clip_obs)
+        return Policy(actor, normalizer).eval()
+
+
+def _load_normalizer(path: Path) -> VecNormalize:
+    try:
+        with path.open("rb") as f:
+            return pickle.load(f)
+    except (OSError, pickle.UnpicklingError, EOFError) as exc:
+        raise LabError(f"normalizer {path} cannot be read: {exc}",
+                       "the checkpoint is incomplete; pick another") from exc
+
+
+def _check_spaces(checkpoint: Path, model: PPO, env: Any) -> None:
+    for what, saved, current in (
+        ("observation", model.observation_space.shape, env.single_observation_space.shape),
+        ("action", model.action_space.shape, env.single_action_space.shape),
+    ):
+        if saved != current:
+            raise LabError(f"checkpoint {checkpoint.name} has {what} size {saved[0]}, but the env"
+                           f" '{env.task_spec.name}' has {current[0]}",
+                           "use a checkpoint trained on this task")

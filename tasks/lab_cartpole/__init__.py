@@ -1,0 +1,1 @@
+"""The cartpole task that ships with lab."""

@@ -1,0 +1,77 @@
+"""Cartpole in the spirit of Isaac Lab's: bring the pole upright from up to ±45° and hold it,
+keeping the cart on its rail. Episodes end after 5 s or when the cart leaves its bounds."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import torch
+from pydantic import Field
+
+from labcli.task import Task, TaskConfig
+
+MODEL = Path(__file__).with_name("cartpole.xml")
+
+
+class CartpoleConfig(TaskConfig):
+    episode_length_s: float = 5.0
+    decimation: int = 2
+    action_scale: float = Field(20.0, description="newtons on the cart at action 1")
+    reward_weights: dict[str, float] = Field(default_factory=lambda: {
+        "alive": 1.0, "terminating": -2.0, "upright": 1.0, "cart_vel": -0.01, "pole_vel": -0.005,
+    })
+    cart_bound: float = Field(3.0, gt=0, description="metres; beyond it the episode ends")
+    reset_cart_pos: tuple[float, float] = (-1.0, 1.0)
+    reset_pole_angle: tuple[float, float] = (-0.25 * math.pi, 0.25 * math.pi)
+    reset_cart_vel: tuple[float, float] = (-0.5, 0.5)
+    reset_pole_vel: tuple[float, float] = (-0.5, 0.5)
+    success_angle: float = Field(0.2, gt=0, description="radians from upright at time-out")
+
+
+def wrap_angle(angle: torch.Tensor) -> torch.Tensor:
+    return torch.remainder(angle + math.pi, 2 * math.pi) - math.pi
+
+
+class Cartpole(Task):
+    cfg: CartpoleConfig
+    observation_names = ["cart_pos", "pole_angle", "cart_vel", "pole_vel"]
+    action_names = ["cart_force"]
+
+    def observations(self) -> torch.Tensor:
+        obs = torch.cat((self.sim.qpos, self.sim.qvel), dim=1)
+        obs[:, 1] = wrap_angle(obs[:, 1])
+        return obs
+
+    def _out_of_bounds(self) -> torch.Tensor:
+        return self.sim.qpos[:, 0].abs() > self.cfg.cart_bound
+
+    def reward_terms(self) -> dict[str, torch.Tensor]:
+        angle = wrap_angle(self.sim.qpos[:, 1])
+        vel = self.sim.qvel.abs()
+        return {
+            "alive": torch.ones_like(angle),
+            "terminating": self._out_of_bounds().to(angle.dtype),
+            # In [0, 1], so a step is never worth less than ending the episode by leaving the rail.
+            "upright": 0.5 * (1.0 + torch.cos(angle)),
+            "cart_vel": vel[:, 0],
+            "pole_vel": vel[:, 1],
+        }
+
+    def terminations(self) -> dict[str, torch.Tensor]:
+        return {"cart_out_of_bounds": self._out_of_bounds()}
+
+    def reset(self, mask: torch.Tensor, generator: torch.Generator) -> None:
+        c = self.cfg
+        ranges = torch.tensor([c.reset_cart_pos, c.reset_pole_angle, c.reset_cart_vel,
+                               c.reset_pole_vel], dtype=self.sim.qpos.dtype, device=mask.device)
+        u = torch.rand(mask.shape[0], 4, generator=generator, device=mask.device,
+                       dtype=ranges.dtype)
+        sample = ranges[:, 0] + u * (ranges[:, 1] - ranges[:, 0])
+        m = mask[:, None]
+        self.sim.qpos.copy_(torch.where(m, sample[:, :2], self.sim.qpos))
+        self.sim.qvel.copy_(torch.where(m, sample[:, 2:], self.sim.qvel))
+
+    def success(self, time_out: torch.Tensor) -> torch.Tensor:
+        upright = wrap_angle(self.sim.qpos[:, 1]).abs() < self.cfg.success_angle
+        return upright & ~self._out_of_bounds()

@@ -1,0 +1,20 @@
+"""Registers the built-in tasks through the same hook a third-party package would use."""
+
+from labcli.hookspecs import hookimpl
+from labcli.task import TaskSpec
+from lab_cartpole.cartpole import MODEL, Cartpole, CartpoleConfig
+
+
+@hookimpl
+def register_tasks(register):
+    register(TaskSpec(
+        name="cartpole",
+        task=Cartpole,
+        config=CartpoleConfig,
+        model=MODEL,
+        description="push a cart to swing its pole upright from up to ±45° and balance it",
+        success="pole within 0.2 rad of upright and cart in bounds at the 5 s time-out",
+        framework_defaults={
+            "sb3": {"env": {"num_envs": 64}, "agent": {}},
+        },
+    ))
