@@ -16,5 +16,7 @@ def register_tasks(register):
         success="pole within 0.2 rad of upright and cart in bounds at the 5 s time-out",
         framework_defaults={
             "sb3": {"env": {"num_envs": 64}, "agent": {}},
+            "rsl_rl": {"env": {"num_envs": 64}, "agent": {}},
+            "skrl": {"env": {"num_envs": 64}, "agent": {}},
         },
     ))
