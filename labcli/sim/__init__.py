@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import importlib.util
+
 import mujoco
 import torch
 
@@ -38,16 +40,16 @@ class Sim:
         pass
 
 
-def default_backend() -> str:
-    return "warp" if torch.cuda.is_available() and _warp_installed() else "cpu"
+def default_backend(device: str | None = None) -> str:
+    """`warp` where the env lives on a CUDA device (or, with no device given, where CUDA is
+    available) and MuJoCo Warp is installed; `cpu` otherwise."""
+    on_gpu = torch.device(device).type == "cuda" if device else True
+    return "warp" if on_gpu and torch.cuda.is_available() and _warp_installed() else "cpu"
 
 
 def _warp_installed() -> bool:
-    try:
-        import mujoco_warp  # noqa: F401
-    except ImportError:
-        return False
-    return True
+    """Checked without importing them, so choosing a backend stays cheap."""
+    return all(importlib.util.find_spec(name) for name in ("warp", "mujoco_warp"))
 
 
 def make_sim(backend: str, model: mujoco.MjModel, num_envs: int, device: str,
@@ -60,5 +62,24 @@ def make_sim(backend: str, model: mujoco.MjModel, num_envs: int, device: str,
                            "use --device cpu, or --backend warp for a GPU")
         return CpuSim(model, num_envs, nthread)
     if backend == "warp":
-        raise LabError("the warp backend is not available in this build", "use --backend cpu")
+        return _make_warp_sim(model, num_envs, device)
     raise LabError(f"unknown backend '{backend}'", f"choose one of: {', '.join(BACKENDS)}")
+
+
+WARP_INSTALL_HINT = 'pip install -e ".[warp]" on a machine with an NVIDIA GPU, or use --backend cpu'
+
+
+def _make_warp_sim(model: mujoco.MjModel, num_envs: int, device: str) -> Sim:
+    """MuJoCo Warp on CUDA; warp is imported here only, so `lab` runs without it."""
+    if torch.device(device).type != "cuda":
+        raise LabError(f"the warp backend keeps its state on a CUDA device, not on '{device}'",
+                       "use --device cuda, or --backend cpu")
+    if not torch.cuda.is_available():
+        raise LabError("the warp backend needs CUDA, which torch cannot use here",
+                       WARP_INSTALL_HINT)
+    try:
+        from labcli.sim.warp import WarpSim
+    except ImportError as exc:
+        raise LabError(f"the warp backend needs MuJoCo Warp, which is not installed ({exc})",
+                       WARP_INSTALL_HINT) from exc
+    return WarpSim(model, num_envs, device)

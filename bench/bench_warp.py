@@ -1,0 +1,277 @@
+"""lab's warp backend against a raw MuJoCo Warp loop on the same model, in env-steps/s.
+
+  python bench/bench_warp.py [--task cartpole] [--sizes 4096,16384,65536] [--out DIR]
+  python bench/bench_warp.py --startup          (seconds to build the env and take a step)
+  python bench/bench_warp.py --profile          (host time per env step, by part)
+
+lab:  `LabVecEnv.step` with a policy's actions (torch MLP on the observations plus noise): task
+      terms, terminations, statistics and masked resets included. Eager, and again with that
+      policy + env step captured once in a torch CUDA graph and replayed (same code, no Python
+      or launch cost per step; the warp backend records its kernels into torch's graph).
+raw:  the RL loop of ../shared/peers/bench_gpu.py ("rl") on the task's own model: torch MLP ->
+      ctrl (zero-copy) -> CUDA graph of `decimation` physics steps -> done/reward in torch ->
+      captured masked `reset_data` -> random state for the reset worlds. No task code, no stats.
+Both: env-steps/s = num_envs * steps / seconds, timed with CUDA events, median of 3 repeats.
+Also counts host syncs per lab step (torch's sync debug mode); any sync stalls the pipeline.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import time
+import warnings
+from collections import defaultdict
+from collections.abc import Callable
+from pathlib import Path
+
+import torch
+
+from labcli import metrics, plugins
+from labcli.env import LabVecEnv
+
+
+def steps_for(num_envs: int) -> int:
+    """Env steps per timed repeat: about 1-3 M env-steps of work, 20..300 steps (as the peer)."""
+    return int(max(20, min(300, 3_000_000 // num_envs)))
+
+
+def mlp(n_in: int, n_out: int) -> torch.nn.Module:
+    return torch.nn.Sequential(torch.nn.Linear(n_in, 64), torch.nn.ELU(), torch.nn.Linear(64, 64),
+                               torch.nn.ELU(), torch.nn.Linear(64, n_out)).cuda()
+
+
+def timed(body: Callable[[], None], steps: int, repeats: int = 3, warmup: int = 5) -> float:
+    """Median seconds of `steps` calls of `body`, on CUDA events (no host clock in the loop)."""
+    for _ in range(warmup):
+        body()
+    times = []
+    for _ in range(repeats):
+        start, end = torch.cuda.Event(enable_timing=True), torch.cuda.Event(enable_timing=True)
+        start.record()
+        for _ in range(steps):
+            body()
+        end.record()
+        end.synchronize()
+        times.append(start.elapsed_time(end) / 1e3)
+    return statistics.median(times)
+
+
+def make_env(task: str, num_envs: int) -> LabVecEnv:
+    spec = plugins.get_task(task)
+    return LabVecEnv(spec, spec.config(num_envs=num_envs), backend="warp", device="cuda")
+
+
+def lab_loop(task: str, num_envs: int, steps: int, graphed: bool = False) -> dict:
+    """`env.step(policy(obs) + noise)`, eager; or, with `graphed`, that whole step captured once
+    with torch.cuda.graph (the warp backend records its kernels into torch's graph) and replayed:
+    the same env and task code without Python and launch overhead per step."""
+    env = make_env(task, num_envs)
+    n_act = env.single_action_space.shape[0]
+    policy = mlp(env.single_observation_space.shape[0], n_act)
+    gen = torch.Generator(device="cuda").manual_seed(0)
+    obs, _ = env.reset(seed=0)
+
+    @torch.no_grad()
+    def step() -> None:
+        noise = 0.5 * torch.randn(num_envs, n_act, device="cuda", generator=gen)
+        next_obs, *_ = env.step((policy(obs) + noise).clamp(-1.0, 1.0))
+        obs.copy_(next_obs)
+
+    key = "lab_graphed" if graphed else "lab"
+    if graphed:
+        side = torch.cuda.Stream()
+        side.wait_stream(torch.cuda.current_stream())
+        with torch.cuda.stream(side):  # warm-up off the default stream, as torch asks
+            for _ in range(3):
+                step()
+        torch.cuda.current_stream().wait_stream(side)
+        graph = torch.cuda.CUDAGraph()
+        for g in (gen, env.generator):
+            graph.register_generator_state(g)
+        with torch.cuda.graph(graph, capture_error_mode="thread_local"):
+            step()
+        out = {key: num_envs * steps / timed(graph.replay, steps)}
+    else:
+        out = {key: num_envs * steps / timed(step, steps),
+               "lab_syncs_per_step": count_syncs(step, 10)}
+    out[key + "_episodes"] = env.pop_stats().get(metrics.EPISODES, 0.0)
+    env.close()
+    return out
+
+
+def count_syncs(body: Callable[[], None], steps: int) -> float:
+    """Host syncs per call of `body`, as torch's sync debug mode reports them."""
+    torch.cuda.synchronize()
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        torch.cuda.set_sync_debug_mode("warn")
+        try:
+            for _ in range(steps):
+                body()
+        finally:
+            torch.cuda.set_sync_debug_mode("default")
+    # Not the warning that the mode itself is a prototype: only the syncs it reports.
+    syncs = [w for w in caught if "called a synchronizing" in str(w.message)]
+    if syncs:
+        print(f"  host sync in lab's step, e.g. at {syncs[0].filename}:{syncs[0].lineno}: "
+              f"{str(syncs[0].message)[:120]}")
+    return len(syncs) / steps
+
+
+def raw_loop(task: str, num_envs: int, steps: int) -> dict:
+    """bench_gpu.py's `rl` protocol on the task's model, with lab's njmax/nconmax."""
+    import mujoco
+    import mujoco_warp as mjw
+    import warp as wp
+
+    from labcli.sim.warp import constraint_capacity, init_warp
+
+    spec = plugins.get_task(task)
+    cfg = spec.config(num_envs=num_envs)
+    init_warp()
+    mjm = mujoco.MjModel.from_xml_path(str(spec.model))
+    if cfg.sim_dt is not None:
+        mjm.opt.timestep = cfg.sim_dt
+    mjd = mujoco.MjData(mjm)
+    mujoco.mj_forward(mjm, mjd)
+    stream = torch.cuda.Stream()
+    with torch.cuda.stream(stream), wp.ScopedStream(wp.stream_from_torch(stream)):
+        m = mjw.put_model(mjm)
+        d = mjw.put_data(mjm, mjd, nworld=num_envs, **constraint_capacity(
+            mjm, m.nxn_geom_pair_filtered.shape[0] > 0))
+        qpos, qvel, ctrl = wp.to_torch(d.qpos), wp.to_torch(d.qvel), wp.to_torch(d.ctrl)
+        mask = wp.zeros(num_envs, dtype=bool)
+        mask_t = wp.to_torch(mask)
+
+        def capture(fn: Callable[[], None]) -> wp.Graph:
+            fn()
+            wp.synchronize_stream(wp.get_stream())
+            with wp.ScopedCapture() as cap:
+                fn()
+            return cap.graph
+
+        physics = capture(lambda: [mjw.step(m, d) for _ in range(cfg.decimation)])
+        reset = capture(lambda: mjw.reset_data(m, d, reset=mask))
+        policy = mlp(mjm.nq + mjm.nv, mjm.nu)
+        gen = torch.Generator(device="cuda").manual_seed(0)
+        reward_sum = torch.zeros(num_envs, device="cuda")
+        bound = getattr(cfg, "cart_bound", 3.0)
+
+        @torch.no_grad()
+        def step() -> None:
+            obs = torch.cat([qpos, qvel], dim=1)
+            act = policy(obs) + 0.5 * torch.randn(num_envs, mjm.nu, device="cuda", generator=gen)
+            ctrl.copy_(act.clamp(-1.0, 1.0) * cfg.action_scale)
+            wp.capture_launch(physics)
+            done = qpos[:, 0].abs() > bound
+            reward_sum.add_((~done).float())
+            mask_t.copy_(done)
+            wp.capture_launch(reset)
+            dm = done[:, None].float()
+            qpos.add_(dm * (torch.rand(qpos.shape, device="cuda", generator=gen) * 2 - 1) * 0.5)
+            qvel.add_(dm * (torch.rand(qvel.shape, device="cuda", generator=gen) * 2 - 1) * 0.5)
+
+        seconds = timed(step, steps)
+    return {"raw": num_envs * steps / seconds}
+
+
+def startup(task: str, num_envs: int) -> None:
+    """Seconds to import MuJoCo Warp, build the env (kernels compiled or loaded) and step it."""
+    start = time.perf_counter()
+    import labcli.sim.warp  # noqa: F401  (warp and mujoco_warp)
+
+    imported = time.perf_counter()
+    env = make_env(task, num_envs)
+    built = time.perf_counter()
+    env.reset(seed=0)
+    env.step(torch.zeros(num_envs, env.single_action_space.shape[0], device="cuda"))
+    torch.cuda.synchronize()
+    done = time.perf_counter()
+    print(f"startup: import {imported - start:.1f} s, env built {built - imported:.1f} s, first "
+          f"step {done - built:.1f} s; total {done - start:.1f} s ({num_envs} envs)")
+
+
+def host_profile(task: str, num_envs: int, steps: int = 200) -> None:
+    """Host (Python + launch) microseconds per env step, by part of the step. At a size where
+    the GPU keeps up, this is what bounds lab's env-steps/s."""
+    env = make_env(task, num_envs)
+    policy = mlp(env.single_observation_space.shape[0], env.single_action_space.shape[0])
+    totals: dict[str, float] = defaultdict(float)
+
+    def wrap(owner: object, name: str, label: str) -> None:
+        fn = getattr(owner, name)
+
+        def timed_fn(*args, **kwargs):
+            t = time.perf_counter()
+            out = fn(*args, **kwargs)
+            totals[label] += time.perf_counter() - t
+            return out
+
+        setattr(owner, name, timed_fn)
+
+    for name in ("step", "reset_to_defaults", "unstable"):
+        wrap(env.sim, name, f"sim.{name}")
+    for name in ("apply_actions", "observations", "reward_terms", "terminations", "reset",
+                 "success"):
+        wrap(env.task, name, f"task.{name}")
+    wrap(env, "_accumulate", "env._accumulate")
+    obs, _ = env.reset(seed=0)
+    with torch.no_grad():
+        for i in range(steps + 20):
+            if i == 20:  # after warm-up
+                totals.clear()
+                torch.cuda.synchronize()
+            t0 = time.perf_counter()
+            actions = (policy(obs) + 0.5 * torch.randn_like(obs[:, :1])).clamp(-1.0, 1.0)
+            t1 = time.perf_counter()
+            obs, *_ = env.step(actions)
+            t2 = time.perf_counter()
+            totals["policy (bench)"] += t1 - t0
+            totals["env.step"] += t2 - t1
+    torch.cuda.synchronize()
+    parts = {k: v for k, v in totals.items() if k not in ("policy (bench)", "env.step")}
+    totals["env.step: the rest"] = totals["env.step"] - sum(parts.values())
+    print(f"host time per env step at {num_envs} envs (us):")
+    for label, seconds in sorted(totals.items(), key=lambda kv: -kv[1]):
+        print(f"  {label:<28} {seconds / steps * 1e6:8.1f}")
+    env.close()
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--task", default="cartpole")
+    p.add_argument("--sizes", default="4096,16384,65536")
+    p.add_argument("--startup", action="store_true", help="only time building the env")
+    p.add_argument("--profile", action="store_true",
+                   help="only break lab's host time per step down by part, at 1024 envs")
+    p.add_argument("--out", type=Path, help="write results.json here")
+    a = p.parse_args()
+    if a.startup:
+        startup(a.task, 4096)
+        return
+    if a.profile:
+        host_profile(a.task, 1024)
+        return
+    print(f"torch {torch.__version__} on {torch.cuda.get_device_name()}; task {a.task}")
+    rows = []
+    for n in (int(s) for s in a.sizes.split(",") if s):
+        steps = steps_for(n)
+        row = {"num_envs": n, "steps": steps, **raw_loop(a.task, n, steps),
+               **lab_loop(a.task, n, steps), **lab_loop(a.task, n, steps, graphed=True)}
+        row["ratio"] = row["lab"] / row["raw"]
+        row["ratio_graphed"] = row["lab_graphed"] / row["raw"]
+        rows.append(row)
+        print(f"{n:>7} envs | raw {row['raw']:>12,.0f} | lab {row['lab']:>12,.0f} "
+              f"({row['ratio']:.0%} of raw) | lab, step in a torch CUDA graph "
+              f"{row['lab_graphed']:>12,.0f} ({row['ratio_graphed']:.0%}) env-steps/s | "
+              f"host syncs per lab step {row['lab_syncs_per_step']:g}", flush=True)
+        torch.cuda.empty_cache()
+    if a.out:
+        a.out.mkdir(parents=True, exist_ok=True)
+        (a.out / "bench_warp.json").write_text(json.dumps(rows, indent=1))
+
+
+if __name__ == "__main__":
+    main()

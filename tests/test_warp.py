@@ -1,0 +1,210 @@
+"""The warp backend: parity with the cpu backend, LabVecEnv on it, and lab without it.
+
+The GPU tests need CUDA and MuJoCo Warp (`pip install -e ".[warp]"`) and skip elsewhere, CI
+included; their first run compiles MuJoCo Warp's kernels (~1 min, cached afterwards).
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import subprocess
+import sys
+
+import mujoco
+import pytest
+import torch
+from lab_cartpole.cartpole import MODEL, Cartpole, CartpoleConfig
+
+from labcli import metrics
+from labcli.env import LabVecEnv
+from labcli.errors import LabError
+from labcli.sim import default_backend, make_sim
+from labcli.task import TaskSpec
+
+HAVE_WARP = all(importlib.util.find_spec(m) for m in ("warp", "mujoco_warp"))
+on_gpu = pytest.mark.skipif(not (HAVE_WARP and torch.cuda.is_available()),
+                            reason='needs a CUDA GPU and MuJoCo Warp (pip install -e ".[warp]")')
+
+SPEC = TaskSpec(name="cartpole", task=Cartpole, config=CartpoleConfig, model=MODEL)
+PARITY_ENVS = 64
+PARITY_STEPS = 100
+# float32 on the GPU against float64 on the CPU over 100 env steps (200 physics steps) of a
+# randomly pushed cartpole whose cart reaches its rail limits. The gap grows with the pole's
+# swings: 2e-7 after 10 env steps, 2e-6 after 50, 6.8e-5 after 100 on an H100 (mujoco-warp 4.0,
+# warp 1.19; 24 of the 64 envs hit a limit), as MuJoCo Warp's own ~5e-5 on gymnasium's pendulum.
+# 1e-3 (a millimetre, a milliradian) leaves 15x room for other GPUs and versions, while a missed
+# limit, a wrong sign or a substep lost between the CUDA graph and torch is off by far more.
+PARITY_TOL = 1e-3
+
+
+def cartpole_model() -> mujoco.MjModel:
+    return mujoco.MjModel.from_xml_path(str(MODEL))
+
+
+# Without a GPU (CI too): lab imports and explains ----------------------------------------------
+def test_lab_imports_without_warp():
+    code = ("import sys, labcli.sim, labcli.env, labcli.training; "
+            "sys.exit(int('warp' in sys.modules or 'mujoco_warp' in sys.modules))")
+    assert subprocess.run([sys.executable, "-c", code]).returncode == 0
+
+
+def test_warp_backend_refuses_a_cpu_device():
+    with pytest.raises(LabError, match="CUDA device") as err:
+        make_sim("warp", cartpole_model(), 4, "cpu")
+    assert "--device cuda" in err.value.hint
+
+
+@pytest.mark.skipif(torch.cuda.is_available(), reason="CUDA is available here")
+def test_warp_backend_without_cuda_says_how_to_get_it():
+    with pytest.raises(LabError, match="needs CUDA") as err:
+        make_sim("warp", cartpole_model(), 4, "cuda")
+    assert 'pip install -e ".[warp]"' in err.value.hint
+
+
+def test_default_backend_follows_the_device():
+    assert default_backend("cpu") == "cpu"
+    expected = "warp" if torch.cuda.is_available() and HAVE_WARP else "cpu"
+    assert default_backend("cuda") == expected
+
+
+# On a GPU -------------------------------------------------------------------------------------
+@pytest.mark.gpu
+@on_gpu
+def test_trajectories_match_the_cpu_backend():
+    """Same initial states, same controls (both rounded to float32 first, so only the engines
+    differ), 100 env steps of `decimation` physics steps each: qpos agrees all along."""
+    cfg = CartpoleConfig()
+    model = cartpole_model()
+    n = PARITY_ENVS
+    cpu = make_sim("cpu", model, n, "cpu")
+    gpu = make_sim("warp", model, n, "cuda")
+    assert gpu.qpos.dtype == torch.float32 and gpu.qpos.device.type == "cuda"
+
+    g = torch.Generator().manual_seed(0)
+
+    def uniform(*shape: int, low: float, high: float) -> torch.Tensor:
+        u = torch.rand(*shape, generator=g, dtype=torch.float64)
+        return (low + u * (high - low)).float().double()
+
+    qpos = torch.cat([uniform(n, 1, low=-1.0, high=1.0), uniform(n, 1, low=-0.8, high=0.8)], 1)
+    qvel = uniform(n, 2, low=-0.5, high=0.5)
+    ctrl = uniform(PARITY_STEPS, n, model.nu, low=-cfg.action_scale, high=cfg.action_scale)
+    for sim in (cpu, gpu):
+        sim.qpos.copy_(qpos)
+        sim.qvel.copy_(qvel)
+
+    errors = []
+    at_limit = torch.zeros(n, dtype=torch.bool)
+    for step in range(PARITY_STEPS):
+        cpu.ctrl.copy_(ctrl[step])
+        gpu.ctrl.copy_(ctrl[step])
+        cpu.step(cfg.decimation)
+        gpu.step(cfg.decimation)
+        errors.append((gpu.qpos.cpu().double() - cpu.qpos).abs().max().item())
+        at_limit |= cpu.qpos[:, 0].abs() > model.jnt_range[0, 1] - 0.05
+    cpu.close()
+    print(f"\nparity: max |qpos warp - cpu| over {PARITY_STEPS} env steps of {n} envs = "
+          f"{max(errors):.2e} (after 10: {errors[9]:.2e}, 50: {errors[49]:.2e}, "
+          f"100: {errors[-1]:.2e}); {int(at_limit.sum())} envs reached a rail limit")
+    assert max(errors) < PARITY_TOL
+
+
+@pytest.mark.gpu
+@on_gpu
+def test_masked_reset_touches_only_masked_envs():
+    sim = make_sim("warp", cartpole_model(), 8, "cuda")
+    sim.qpos.uniform_(-1.0, 1.0)
+    sim.qvel.uniform_(-1.0, 1.0)
+    before = sim.qpos.clone(), sim.qvel.clone()
+    mask = torch.arange(8, device="cuda") % 2 == 0
+    sim.reset_to_defaults(mask)
+    qpos0 = torch.as_tensor(sim.model.qpos0, dtype=torch.float32, device="cuda")
+    assert torch.equal(sim.qpos[mask], qpos0.expand(4, -1))
+    assert torch.equal(sim.qvel[mask], torch.zeros(4, 2, device="cuda"))
+    assert torch.equal(sim.qpos[~mask], before[0][~mask])
+    assert torch.equal(sim.qvel[~mask], before[1][~mask])
+    sim.reset_to_defaults(torch.zeros(8, dtype=torch.bool, device="cuda"))
+    assert torch.equal(sim.qpos[~mask], before[0][~mask])
+
+
+@pytest.fixture(scope="module")
+def warp_env():
+    env = LabVecEnv(SPEC, CartpoleConfig(num_envs=256), backend="warp", device="cuda")
+    yield env
+    env.close()
+
+
+@pytest.mark.gpu
+@on_gpu
+def test_env_shapes_devices_and_autoreset(warp_env):
+    env = warp_env
+    n = env.num_envs
+    obs, _ = env.reset(seed=0)
+    assert obs.shape == (n, 4) and obs.dtype == torch.float32 and obs.device.type == "cuda"
+    g = torch.Generator(device="cuda").manual_seed(1)
+    ended = torch.zeros(n, dtype=torch.bool, device="cuda")
+    for _ in range(env.max_episode_length):
+        actions = torch.rand(n, 1, device="cuda", generator=g) * 2 - 1
+        obs, reward, terminated, truncated, info = env.step(actions)
+        for t, shape, dtype in ((obs, (n, 4), torch.float32), (reward, (n,), torch.float32),
+                                (terminated, (n,), torch.bool), (truncated, (n,), torch.bool)):
+            assert t.shape == shape and t.dtype == dtype and t.device.type == "cuda"
+        assert torch.isfinite(obs).all() and torch.isfinite(reward).all()
+        done = terminated | truncated
+        ended |= done
+        # Ended envs start over in the same step: a fresh episode, its first observation.
+        assert (env.episode_length[done] == 0).all()
+        assert torch.equal(info["_final_obs"], done)
+        fresh = obs[done]
+        assert (fresh[:, 0].abs() <= 1.0 + 1e-6).all()
+        assert (fresh[:, 1].abs() <= 0.25 * torch.pi + 1e-6).all()
+    # By the time-out every env has ended once, and the statistics say so.
+    assert ended.all()
+    stats = env.pop_stats()
+    assert stats[metrics.EPISODES] >= n
+
+
+@pytest.mark.gpu
+@on_gpu
+def test_env_resets_envs_fed_non_finite_actions(warp_env):
+    env = warp_env
+    env.reset(seed=0)
+    actions = torch.zeros(env.num_envs, 1, device="cuda")
+    actions[3] = float("nan")
+    obs, _, terminated, _, _ = env.step(actions)
+    assert terminated[3] and not terminated[:3].any()
+    assert torch.isfinite(obs).all()
+    assert env.episode_length[3] == 0
+
+
+@pytest.mark.gpu
+@on_gpu
+def test_env_step_replays_as_one_torch_cuda_graph():
+    """A whole env step can be captured with torch.cuda.graph (the sim records its kernels into
+    torch's graph) and replays to the same trajectory as the eager step."""
+    n, steps = 128, 60
+    envs = [LabVecEnv(SPEC, CartpoleConfig(num_envs=n), backend="warp", device="cuda")
+            for _ in range(2)]
+    eager, graphed = envs
+    actions = torch.zeros(n, 1, device="cuda")
+    for env in envs:
+        env.reset(seed=0)
+    side = torch.cuda.Stream()
+    side.wait_stream(torch.cuda.current_stream())
+    with torch.cuda.stream(side):  # warm up off the default stream, as torch asks
+        graphed.step(actions)
+    torch.cuda.current_stream().wait_stream(side)
+    graphed.reset(seed=0)
+    graph = torch.cuda.CUDAGraph()
+    graph.register_generator_state(graphed.generator)
+    with torch.cuda.graph(graph, capture_error_mode="thread_local"):
+        out = graphed.step(actions)
+    graphed.reset(seed=0)
+    for i in range(steps):
+        actions.copy_(torch.sin(torch.arange(n, device="cuda")[:, None] * 0.1 + i * 0.3))
+        expected = eager.step(actions)
+        graph.replay()
+        torch.testing.assert_close(out[0], expected[0], rtol=0, atol=1e-5)
+        assert torch.equal(out[2], expected[2]) and torch.equal(out[3], expected[3])
+    for env in envs:
+        env.close()
