@@ -35,7 +35,7 @@ class LabVecEnv(gym.vector.VectorEnv):
         model = mujoco.MjModel.from_xml_path(str(spec.model))
         if cfg.sim_dt is not None:
             model.opt.timestep = cfg.sim_dt
-        self.backend = backend or default_backend()
+        self.backend = backend or default_backend(device)
         self.sim = make_sim(self.backend, model, cfg.num_envs, device, nthread)
         self.task = spec.task(cfg, self.sim)
         self.num_envs = cfg.num_envs

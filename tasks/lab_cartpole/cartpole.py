@@ -9,6 +9,7 @@ from pathlib import Path
 import torch
 from pydantic import Field
 
+from labcli.sim import Sim
 from labcli.task import Task, TaskConfig
 
 MODEL = Path(__file__).with_name("cartpole.xml")
@@ -38,6 +39,14 @@ class Cartpole(Task):
     observation_names = ["cart_pos", "pole_angle", "cart_vel", "pole_vel"]
     action_names = ["cart_force"]
 
+    def __init__(self, cfg: CartpoleConfig, sim: Sim):
+        super().__init__(cfg, sim)
+        # Built once: a tensor made from Python numbers on a GPU is a host-to-device copy that
+        # waits for the GPU, and reset runs every step.
+        self._reset_ranges = torch.tensor(
+            [cfg.reset_cart_pos, cfg.reset_pole_angle, cfg.reset_cart_vel, cfg.reset_pole_vel],
+            dtype=sim.qpos.dtype, device=sim.qpos.device)
+
     def observations(self) -> torch.Tensor:
         obs = torch.cat((self.sim.qpos, self.sim.qvel), dim=1)
         obs[:, 1] = wrap_angle(obs[:, 1])
@@ -62,9 +71,7 @@ class Cartpole(Task):
         return {"cart_out_of_bounds": self._out_of_bounds()}
 
     def reset(self, mask: torch.Tensor, generator: torch.Generator) -> None:
-        c = self.cfg
-        ranges = torch.tensor([c.reset_cart_pos, c.reset_pole_angle, c.reset_cart_vel,
-                               c.reset_pole_vel], dtype=self.sim.qpos.dtype, device=mask.device)
+        ranges = self._reset_ranges
         u = torch.rand(mask.shape[0], 4, generator=generator, device=mask.device,
                        dtype=ranges.dtype)
         sample = ranges[:, 0] + u * (ranges[:, 1] - ranges[:, 0])
