@@ -17,6 +17,7 @@ def register_tasks(register):
         framework_defaults={
             "sb3": {"env": {"num_envs": 64}, "agent": {}},
             "rsl_rl": {"env": {"num_envs": 64}, "agent": {}},
-            "skrl": {"env": {"num_envs": 64}, "agent": {}},
+            "skrl": {"env": {"num_envs": 128}, "agent": {"max_iterations": 120, "rollouts": 32,
+                                                         "mini_batches": 16, "desired_kl": 0.005}},
         },
     ))

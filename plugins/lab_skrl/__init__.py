@@ -1,0 +1,1 @@
+"""skrl as a lab framework plugin."""

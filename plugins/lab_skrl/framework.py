@@ -1,0 +1,317 @@
+"""PPO from skrl behind lab's Framework API.
+
+lab drives the loop itself (what skrl's SequentialTrainer does, one rollout + update per
+iteration) so that it can report each iteration, checkpoint through lab and stop on Ctrl-C.
+A checkpoint is skrl's own agent checkpoint (a dict of state dicts: policy, value, optimizer,
+preprocessors) plus a `lab` entry with the sizes and network shape needed to rebuild the policy.
+"""
+
+from __future__ import annotations
+
+import pickle
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any, Literal
+
+import gymnasium as gym
+import torch
+from pydantic import Field, PositiveInt
+from skrl.agents.torch import ExperimentCfg
+from skrl.agents.torch.ppo import PPO, PPO_CFG
+from skrl.memories.torch import RandomMemory
+from skrl.models.torch import DeterministicMixin, GaussianMixin, Model
+from skrl.resources.preprocessors.torch import RunningStandardScaler
+from skrl.resources.schedulers.torch import KLAdaptiveLR
+from torch import nn
+
+from lab_skrl.adapter import SkrlEnv
+from labcli.errors import LabError
+from labcli.framework import AgentConfig, Framework, ObsNormalizer, Policy
+from labcli.training import TrainContext
+from labcli.wrappers import Stage, Step, WrapperSpec
+
+ACTIVATIONS = {"tanh": nn.Tanh, "relu": nn.ReLU, "elu": nn.ELU}
+META = "lab"  # checkpoint entry with what lab needs besides skrl's modules
+META_KEYS = {"observation_size", "action_size", "hidden_sizes", "activation", "obs_clip",
+             "obs_epsilon", "steps"}
+OBS_EPSILON = 1e-8  # RunningStandardScaler's default, stored so the frozen copy matches
+
+ADAPTER = WrapperSpec("skrl.adapter", Stage.ADAPTER, SkrlEnv, framework="skrl",
+                      description="torch VectorEnv → skrl env wrapper (torch), time-outs flagged")
+
+
+class SkrlPPOConfig(AgentConfig):
+    rollouts: int = Field(16, gt=0, description="steps per env per iteration")
+    learning_epochs: int = Field(8, gt=0)
+    mini_batches: int = Field(8, gt=0)
+    discount_factor: float = Field(0.99, gt=0, le=1)
+    gae_lambda: float = Field(0.95, gt=0, le=1)
+    learning_rate: float = Field(1e-3, gt=0)
+    kl_adaptive_lr: bool = Field(True, description="adapt the learning rate to desired_kl")
+    desired_kl: float = Field(0.008, gt=0, description="KL target of the adaptive learning rate")
+    ratio_clip: float = Field(0.2, gt=0)
+    value_clip: float = Field(0.2, ge=0, description="0 turns value clipping off")
+    entropy_loss_scale: float = 0.0
+    value_loss_scale: float = Field(2.0, gt=0)
+    grad_norm_clip: float = Field(1.0, ge=0, description="0 turns gradient clipping off")
+    reward_scale: float = Field(1.0, gt=0, description="rewards are multiplied by this")
+    hidden_sizes: list[PositiveInt] = Field(default_factory=lambda: [32, 32])
+    activation: Literal["tanh", "relu", "elu"] = "elu"
+    init_log_std: float = 0.0
+    normalize_obs: bool = True
+    normalize_value: bool = True
+    clip_obs: float = Field(5.0, gt=0, description="normalized observations are clipped to ±this")
+
+
+def mlp(n_in: int, hidden: list[int], n_out: int, activation: str) -> nn.Sequential:
+    layers: list[nn.Module] = []
+    for size in hidden:
+        layers += [nn.Linear(n_in, size), ACTIVATIONS[activation]()]
+        n_in = size
+    return nn.Sequential(*layers, nn.Linear(n_in, n_out))
+
+
+class Actor(GaussianMixin, Model):
+    """Gaussian policy: `net` gives the mean action, a free parameter the log std."""
+
+    def __init__(self, observation_space: gym.Space, action_space: gym.Space, device: Any,
+                 hidden_sizes: list[int], activation: str, init_log_std: float):
+        Model.__init__(self, observation_space=observation_space, action_space=action_space,
+                       device=device)
+        GaussianMixin.__init__(self, clip_actions=False, clip_log_std=True, min_log_std=-20.0,
+                               max_log_std=2.0, reduction="sum")
+        self.net = mlp(self.num_observations, hidden_sizes, self.num_actions, activation)
+        self.log_std_parameter = nn.Parameter(torch.full((self.num_actions,), init_log_std))
+
+    def compute(self, inputs: dict[str, Any], role: str = "") -> tuple[torch.Tensor, dict]:
+        return self.net(inputs["observations"]), {"log_std": self.log_std_parameter}
+
+
+class Critic(DeterministicMixin, Model):
+    def __init__(self, observation_space: gym.Space, action_space: gym.Space, device: Any,
+                 hidden_sizes: list[int], activation: str):
+        Model.__init__(self, observation_space=observation_space, action_space=action_space,
+                       device=device)
+        DeterministicMixin.__init__(self, clip_actions=False)
+        self.net = mlp(self.num_observations, hidden_sizes, 1, activation)
+
+    def compute(self, inputs: dict[str, Any], role: str = "") -> tuple[torch.Tensor, dict]:
+        return self.net(inputs["observations"]), {}
+
+
+class _ScaleRewards:
+    """skrl's rewards_shaper. It also hands skrl a new tensor, which matters because skrl adds
+    the time-out bootstrap to the rewards it is given in place."""
+
+    def __init__(self, scale: float):
+        self.scale = scale
+
+    def __call__(self, rewards: torch.Tensor, timestep: int, timesteps: int) -> torch.Tensor:
+        return rewards * self.scale
+
+
+def make_agent(cfg: SkrlPPOConfig, env: SkrlEnv, device: str, run_dir: Path) -> PPO:
+    obs_space, act_space = env.observation_space, env.action_space
+    models = {
+        "policy": Actor(obs_space, act_space, device, cfg.hidden_sizes, cfg.activation,
+                        cfg.init_log_std),
+        "value": Critic(obs_space, act_space, device, cfg.hidden_sizes, cfg.activation),
+    }
+    ppo_cfg = PPO_CFG(
+        rollouts=cfg.rollouts, learning_epochs=cfg.learning_epochs,
+        mini_batches=cfg.mini_batches, discount_factor=cfg.discount_factor,
+        gae_lambda=cfg.gae_lambda, learning_rate=cfg.learning_rate,
+        learning_rate_scheduler=KLAdaptiveLR if cfg.kl_adaptive_lr else None,
+        learning_rate_scheduler_kwargs={"kl_threshold": cfg.desired_kl} if cfg.kl_adaptive_lr
+        else {},
+        # skrl 2.x: `observation_preprocessor` normalizes what the policy sees (1.x called it
+        # `state_preprocessor`; 2.x keeps that name for a separate critic state, unused here).
+        observation_preprocessor=RunningStandardScaler if cfg.normalize_obs else None,
+        observation_preprocessor_kwargs={"size": obs_space, "clip_threshold": cfg.clip_obs,
+                                         "epsilon": OBS_EPSILON, "device": device},
+        value_preprocessor=RunningStandardScaler if cfg.normalize_value else None,
+        value_preprocessor_kwargs={"size": 1, "device": device},
+        grad_norm_clip=cfg.grad_norm_clip, ratio_clip=cfg.ratio_clip, value_clip=cfg.value_clip,
+        entropy_loss_scale=cfg.entropy_loss_scale, value_loss_scale=cfg.value_loss_scale,
+        # Time-outs are not failures: bootstrap from the value of the true last observation.
+        time_limit_bootstrap=True,
+        rewards_shaper=_ScaleRewards(cfg.reward_scale),
+        # lab writes checkpoints and the common TensorBoard tags; skrl's own writer and
+        # checkpointer stay off (its per-step reward tracking would also sync every step).
+        experiment=ExperimentCfg(directory=str(run_dir.parent), experiment_name=run_dir.name,
+                                 write_interval=0, checkpoint_interval=0),
+    )
+    memory = RandomMemory(memory_size=cfg.rollouts, num_envs=env.num_envs, device=device)
+    agent = PPO(models=models, memory=memory, observation_space=obs_space,
+                action_space=act_space, device=device, cfg=ppo_cfg)
+    agent.init()
+    return agent
+
+
+class SkrlFramework(Framework):
+    name = "skrl"
+    description = "skrl PPO (torch end to end; running observation normalizer)"
+    agent_config = SkrlPPOConfig
+
+    def wrappers(self) -> list[WrapperSpec]:
+        return [ADAPTER]
+
+    def pipeline(self, cfg: SkrlPPOConfig) -> list[Step]:
+        return [Step(ADAPTER)]
+
+    def train(self, env: SkrlEnv, ctx: TrainContext) -> None:
+        cfg: SkrlPPOConfig = ctx.cfg  # type: ignore[assignment]
+        agent = make_agent(cfg, env, ctx.device, ctx.run_dir)
+        steps = 0
+        if ctx.resume is not None:
+            saved = read_checkpoint(ctx.resume.path)
+            load_agent(agent, saved, ctx.resume.path)
+            steps = saved[META]["steps"]
+        meta = {
+            "observation_size": _size(env.observation_space),
+            "action_size": _size(env.action_space),
+            "hidden_sizes": list(cfg.hidden_sizes), "activation": cfg.activation,
+            "obs_clip": cfg.clip_obs, "obs_epsilon": OBS_EPSILON,
+        }
+
+        def save(path: Path) -> None:
+            modules = {name: module.state_dict()
+                       for name, module in agent.checkpoint_modules.items()}
+            torch.save({**modules, META: {**meta, "steps": steps}}, path)
+
+        agent.enable_training_mode(True)
+        with _one_torch_thread_on_cpu(ctx.device):
+            obs, _ = env.reset()
+            for iteration in range(ctx.start_iteration + 1, cfg.max_iterations + 1):
+                obs, complete = _collect_and_update(agent, env, obs, ctx, iteration)
+                if not complete:
+                    break  # stopped mid-rollout: the partial rollout is dropped, not trained on
+                steps += cfg.rollouts * env.num_envs
+                if ctx.end_iteration(iteration, steps, save, _pop_tracking(agent)):
+                    break
+        ctx.save(save)  # after a stop mid-rollout: the last complete iteration
+
+    def load_policy(self, checkpoint: Path, env: Any) -> Policy:
+        saved = read_checkpoint(checkpoint)
+        meta = saved[META]
+        _check_sizes(checkpoint, meta, env)
+        actor = Actor(env.single_observation_space, env.single_action_space, "cpu",
+                      meta["hidden_sizes"], meta["activation"], 0.0)
+        try:
+            actor.load_state_dict(saved["policy"])
+        except (KeyError, RuntimeError) as exc:
+            raise LabError(f"checkpoint {checkpoint.name} has no policy matching its own "
+                           f"description: {_one_line(exc)}", "pick another checkpoint") from exc
+        normalizer = None
+        scaler = saved.get("observation_preprocessor")
+        if scaler is not None:
+            # skrl computes (x - mean) / (sqrt(var) + eps); ObsNormalizer divides by
+            # sqrt(var' + 0), so var' = (sqrt(var) + eps)² gives the same numbers.
+            std = scaler["running_variance"].sqrt() + meta["obs_epsilon"]
+            normalizer = ObsNormalizer(scaler["running_mean"], std.square(), 0.0, meta["obs_clip"])
+        return Policy(actor.net, normalizer).eval()
+
+
+def _collect_and_update(agent: PPO, env: SkrlEnv, obs: torch.Tensor, ctx: TrainContext,
+                        iteration: int) -> tuple[torch.Tensor, bool]:
+    """One rollout of `cfg.rollouts` steps; skrl updates inside the last `post_interaction`.
+    Returns the next observations and False when a stop was asked before the rollout ended."""
+    cfg: SkrlPPOConfig = ctx.cfg  # type: ignore[assignment]
+    total = cfg.max_iterations * cfg.rollouts
+    for step in range(cfg.rollouts):
+        # Checked before a step, never after the last one: once the update ran, the iteration
+        # is complete and gets reported (and checkpointed) as such.
+        if ctx.stop_requested:
+            return obs, False
+        t = (iteration - 1) * cfg.rollouts + step
+        agent.pre_interaction(timestep=t, timesteps=total)
+        with torch.no_grad():
+            actions, _ = agent.act(obs, None, timestep=t, timesteps=total)
+            next_obs, rewards, terminated, truncated, info = env.step(actions)
+            # Ended envs were reset in the same step, so next_obs holds their new first
+            # observation; skrl bootstraps time-outs from `next_observations`: give it the
+            # true last ones.
+            done = terminated | truncated
+            last_obs = torch.where(done, info["final_obs"], next_obs)
+            agent.record_transition(
+                observations=obs, states=None, actions=actions, rewards=rewards,
+                next_observations=last_obs, next_states=None, terminated=terminated,
+                truncated=truncated, infos=info, timestep=t, timesteps=total)
+        agent.post_interaction(timestep=t, timesteps=total)  # the update needs gradients
+        obs = next_obs
+    return obs, True
+
+
+@contextmanager
+def _one_torch_thread_on_cpu(device: str) -> Iterator[None]:
+    """Policy-sized MLPs train faster on one intra-op thread: more only add synchronization,
+    and on a busy machine the threads wait on each other (backward 44 ms vs 1 ms measured on
+    2 shared cores). The simulator keeps its own threads."""
+    if torch.device(device).type != "cpu":
+        yield
+        return
+    previous = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(previous)
+
+
+def _pop_tracking(agent: PPO) -> dict[str, float]:
+    """skrl's own figures (losses, policy std, learning rate), averaged over the iteration."""
+    scalars = {tag.replace(" / ", "/"): float(sum(values) / len(values))
+               for tag, values in agent.tracking_data.items() if values}
+    agent.tracking_data.clear()
+    return scalars
+
+
+def read_checkpoint(path: Path) -> dict[str, Any]:
+    """The saved dict, or a LabError for a missing, corrupt or foreign file."""
+    if not path.is_file():
+        raise LabError(f"checkpoint {path} does not exist", "pick another with --checkpoint")
+    try:
+        saved = torch.load(path, map_location="cpu", weights_only=True)
+    except (OSError, RuntimeError, EOFError, pickle.UnpicklingError, ValueError) as exc:
+        raise LabError(f"checkpoint {path} is not a loadable torch file: {_one_line(exc)}",
+                       "pick another checkpoint with --checkpoint") from exc
+    meta = saved.get(META) if isinstance(saved, dict) else None
+    if not isinstance(meta, dict) or not set(meta) >= META_KEYS or "policy" not in saved:
+        raise LabError(f"checkpoint {path} is not a lab skrl checkpoint",
+                       "pick a model_<iteration>.pt written by lab's skrl plugin")
+    return saved
+
+
+def load_agent(agent: PPO, saved: dict[str, Any], path: Path) -> None:
+    """Restore models, optimizer (with its learning rate) and preprocessors."""
+    for name, module in agent.checkpoint_modules.items():
+        if name not in saved:
+            raise LabError(f"checkpoint {path.name} has no '{name}' state",
+                           "resume with the settings it was trained with (e.g. normalize_obs)")
+        try:
+            module.load_state_dict(saved[name])
+        except (RuntimeError, ValueError, KeyError) as exc:
+            raise LabError(f"checkpoint {path.name}: '{name}' does not fit this agent: "
+                           f"{_one_line(exc)}", "resume with the settings it was trained with"
+                           ) from exc
+
+
+def _check_sizes(checkpoint: Path, meta: dict[str, Any], env: Any) -> None:
+    for what, saved, current in (
+        ("observation", meta["observation_size"], _size(env.single_observation_space)),
+        ("action", meta["action_size"], _size(env.single_action_space)),
+    ):
+        if saved != current:
+            raise LabError(f"checkpoint {checkpoint.name} has {what} size {saved}, but the env"
+                           f" '{env.task_spec.name}' has {current}",
+                           "use a checkpoint trained on this task")
+
+
+def _size(space: gym.Space) -> int:
+    return int(gym.spaces.flatdim(space))
+
+
+def _one_line(exc: BaseException) -> str:
+    lines = str(exc).strip().splitlines()
+    return lines[0] if lines else type(exc).__name__
