@@ -16,7 +16,10 @@ def register_tasks(register):
         success="pole within 0.2 rad of upright and cart in bounds at the 5 s time-out",
         framework_defaults={
             "sb3": {"env": {"num_envs": 64}, "agent": {}},
-            "rsl_rl": {"env": {"num_envs": 64}, "agent": {}},
+            "rsl_rl": {"env": {"num_envs": 128}, "agent": {
+                "max_iterations": 200, "num_steps_per_env": 32, "num_learning_epochs": 8,
+                "num_mini_batches": 8, "desired_kl": 0.005, "entropy_coef": 0.0,
+                "use_clipped_value_loss": False}},
             "skrl": {"env": {"num_envs": 128}, "agent": {"max_iterations": 120, "rollouts": 32,
                                                          "mini_batches": 16, "desired_kl": 0.005}},
         },

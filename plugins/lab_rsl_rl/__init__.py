@@ -1,0 +1,1 @@
+"""RSL-RL (rsl-rl-lib 5.x) as a lab framework plugin."""

@@ -1,0 +1,274 @@
+"""PPO from RSL-RL (rsl-rl-lib 5.x) behind lab's Framework API."""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import pickle
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any, Literal
+
+import torch
+from pydantic import Field
+from rsl_rl.models import MLPModel
+from rsl_rl.runners import OnPolicyRunner
+from tensordict import TensorDict
+from torch import nn
+
+from lab_rsl_rl.adapter import OBS_GROUP, RslRlVecEnv
+from labcli.errors import LabError
+from labcli.framework import AgentConfig, Framework, ObsNormalizer, Policy
+from labcli.training import TrainContext
+from labcli.wrappers import Stage, Step, WrapperSpec
+
+ADAPTER = WrapperSpec("rsl_rl.adapter", Stage.ADAPTER, RslRlVecEnv, framework="rsl_rl",
+                      description="torch VectorEnv → RSL-RL VecEnv (TensorDict), time-outs flagged")
+
+# Checkpoints are RSL-RL's own dict (runner.save); lab adds what load_policy needs to rebuild the
+# actor without the run's config under this key of its "infos".
+INFO_KEY = "lab"
+INFO_KEYS = {"observation_size", "action_size", "actor"}
+MODEL, DISTRIBUTION = "MLPModel", "GaussianDistribution"  # the classes this plugin writes
+
+
+class RslRlPpoConfig(AgentConfig):
+    """RSL-RL's PPO and actor-critic settings, named as in Isaac Lab's RslRlPpoAlgorithmCfg."""
+
+    num_steps_per_env: int = Field(24, gt=0, description="steps per env per iteration")
+    actor_hidden_dims: list[int] = Field(default_factory=lambda: [64, 64])
+    critic_hidden_dims: list[int] = Field(default_factory=lambda: [64, 64])
+    activation: Literal["elu", "relu", "tanh", "selu", "lrelu", "gelu", "swish"] = "elu"
+    init_noise_std: float = Field(1.0, gt=0, description="initial std of the Gaussian actions")
+    empirical_normalization: bool = Field(
+        True, description="normalize observations by running mean and std (saved in checkpoints)")
+    learning_rate: float = Field(1e-3, gt=0)
+    schedule: Literal["adaptive", "fixed"] = "adaptive"
+    desired_kl: float | None = Field(0.01, gt=0, description="KL target of the adaptive lr")
+    num_learning_epochs: int = Field(5, gt=0)
+    num_mini_batches: int = Field(4, gt=0)
+    gamma: float = Field(0.99, gt=0, le=1)
+    lam: float = Field(0.95, gt=0, le=1)
+    clip_param: float = Field(0.2, gt=0)
+    entropy_coef: float = 0.005
+    value_loss_coef: float = 1.0
+    use_clipped_value_loss: bool = True
+    max_grad_norm: float = Field(1.0, gt=0)
+
+
+def runner_config(cfg: RslRlPpoConfig) -> dict[str, Any]:
+    """The OnPolicyRunner config dict (5.x schema: `actor`, `critic`, `algorithm`, `obs_groups`)."""
+    norm = cfg.empirical_normalization
+    return {
+        "num_steps_per_env": cfg.num_steps_per_env,
+        # The runner saves by itself only through its own log writer, which lab does not create
+        # (see _LabLogger), so this never bypasses lab's atomic save.
+        "save_interval": cfg.save_interval,
+        "obs_groups": {"actor": [OBS_GROUP], "critic": [OBS_GROUP]},
+        # lab's env already replaces non-finite observations; the check costs a sync per step.
+        "check_for_nan": False,
+        "actor": {
+            "class_name": MODEL, "hidden_dims": list(cfg.actor_hidden_dims),
+            "activation": cfg.activation, "obs_normalization": norm,
+            "distribution_cfg": {"class_name": DISTRIBUTION,
+                                 "init_std": cfg.init_noise_std},
+        },
+        "critic": {
+            "class_name": MODEL, "hidden_dims": list(cfg.critic_hidden_dims),
+            "activation": cfg.activation, "obs_normalization": norm,
+        },
+        "algorithm": {
+            "class_name": "PPO", "learning_rate": cfg.learning_rate, "schedule": cfg.schedule,
+            "desired_kl": cfg.desired_kl, "num_learning_epochs": cfg.num_learning_epochs,
+            "num_mini_batches": cfg.num_mini_batches, "gamma": cfg.gamma, "lam": cfg.lam,
+            "clip_param": cfg.clip_param, "entropy_coef": cfg.entropy_coef,
+            "value_loss_coef": cfg.value_loss_coef,
+            "use_clipped_value_loss": cfg.use_clipped_value_loss,
+            "max_grad_norm": cfg.max_grad_norm,
+        },
+    }
+
+
+class _Stop(Exception):
+    """Leaves the runner's loop at once when lab asks training to stop."""
+
+
+class _LabLogger:
+    """Stands in for RSL-RL's Logger inside the runner. lab's env already counts episodes on the
+    device and TrainContext writes TensorBoard, progress and checkpoints, so this forwards the
+    losses and ends each iteration through lab. Its `writer` stays None: the runner then neither
+    prints, nor dumps git diffs, nor saves checkpoints behind lab's back."""
+
+    writer = None
+
+    def __init__(self, ctx: TrainContext, save: Any, steps_per_iteration: int):
+        self.ctx, self.save, self.steps_per_iteration = ctx, save, steps_per_iteration
+
+    def init_logging_writer(self) -> None:
+        pass
+
+    def process_env_step(self, *args: Any, **kwargs: Any) -> None:
+        # Called after every env step: Ctrl-C mid-rollout stops here, and train() then saves
+        # the last finished iteration.
+        if self.ctx.stop_requested:
+            raise _Stop
+
+    def log(self, *, it: int, collect_time: float, learn_time: float,
+            loss_dict: dict[str, float], learning_rate: float, action_std: torch.Tensor,
+            **_: Any) -> None:
+        iteration = it + 1  # the runner counts from 0; lab counts iterations done
+        # The tags RSL-RL's own logger writes, so its users find them where they expect.
+        scalars = {f"Loss/{name}": value for name, value in loss_dict.items()}
+        scalars["Loss/learning_rate"] = learning_rate
+        scalars["Policy/mean_std"] = action_std.mean().item()
+        scalars["Perf/collection_time"] = collect_time
+        scalars["Perf/learning_time"] = learn_time
+        if self.ctx.end_iteration(iteration, iteration * self.steps_per_iteration, self.save,
+                                  scalars):
+            raise _Stop
+
+    def save_model(self, path: str, it: int) -> None:
+        pass  # no external logging service to upload to
+
+
+class LabRunner(OnPolicyRunner):
+    """OnPolicyRunner reporting to lab's TrainContext; checkpoints keep RSL-RL's format."""
+
+    def __init__(self, env: RslRlVecEnv, cfg: RslRlPpoConfig, ctx: TrainContext):
+        with contextlib.redirect_stdout(io.StringIO()):  # it prints both models; lab has a bar
+            super().__init__(env, runner_config(cfg), log_dir=str(ctx.run_dir),
+                             device=ctx.device)
+        self.ctx = ctx
+        self.info = {"observation_size": env.get_observations()[OBS_GROUP].shape[1],
+                     "action_size": env.num_actions, "actor": self.cfg["actor"]}
+        self.logger = _LabLogger(ctx, self.write_checkpoint, cfg.num_steps_per_env * env.num_envs)
+
+    def write_checkpoint(self, path: Path) -> None:
+        # "iter" is the number of iterations done, so that learn() after load() goes on with
+        # the next one.
+        self.current_learning_iteration = self.ctx.iteration
+        self.save(str(path), infos={INFO_KEY: self.info})
+
+    def resume(self, path: Path) -> None:
+        saved = _read_checkpoint(path, self.device)
+        try:
+            self.alg.load(saved, None, strict=True)  # actor, critic (normalizers too), optimizer
+        except (RuntimeError, KeyError, ValueError) as exc:
+            raise LabError(f"checkpoint {path.name} does not fit the agent config: "
+                           f"{_first_line(exc)}", "resume without changing the network") from exc
+        self.current_learning_iteration = self.ctx.start_iteration
+
+
+class RslRlFramework(Framework):
+    name = "rsl_rl"
+    description = "RSL-RL PPO (torch end to end; empirical observation normalization)"
+    agent_config = RslRlPpoConfig
+
+    def wrappers(self) -> list[WrapperSpec]:
+        return [ADAPTER]
+
+    def pipeline(self, cfg: RslRlPpoConfig) -> list[Step]:
+        # Normalization lives in RSL-RL's models, so no framework-stage wrapper is needed.
+        return [Step(ADAPTER)]
+
+    def train(self, env: RslRlVecEnv, ctx: TrainContext) -> None:
+        cfg: RslRlPpoConfig = ctx.cfg  # type: ignore[assignment]
+        with _one_torch_thread(ctx.device):
+            runner = LabRunner(env, cfg, ctx)
+            if ctx.resume is not None:
+                runner.resume(ctx.resume.path)
+            with contextlib.suppress(_Stop):  # raised once lab's checkpoint logic is done
+                runner.learn(cfg.max_iterations - ctx.start_iteration)
+            ctx.save(runner.write_checkpoint)  # no-op unless stopped mid-rollout
+
+    def load_policy(self, checkpoint: Path, env: Any) -> Policy:
+        saved = _read_checkpoint(checkpoint, "cpu")
+        info = saved.get("infos")
+        info = info.get(INFO_KEY) if isinstance(info, dict) else None
+        if not isinstance(info, dict) or INFO_KEYS - info.keys():
+            raise LabError(f"checkpoint {checkpoint.name} was not written by lab's rsl_rl plugin"
+                           f" (its infos lack the '{INFO_KEY}' entry)",
+                           "pick another checkpoint with --checkpoint")
+        obs_size, action_size = info["observation_size"], info["action_size"]
+        for what, size, current in (
+            ("observation", obs_size, env.single_observation_space.shape[0]),
+            ("action", action_size, env.single_action_space.shape[0]),
+        ):
+            if size != current:
+                raise LabError(f"checkpoint {checkpoint.name} has {what} size {size}, but the env"
+                               f" '{env.task_spec.name}' has {current}",
+                               "use a checkpoint trained on this task")
+        dummy = TensorDict({OBS_GROUP: torch.zeros(1, obs_size)}, batch_size=[1])
+        model = MLPModel(dummy, {"actor": [OBS_GROUP]}, "actor", action_size,
+                         **_actor_kwargs(checkpoint, info["actor"]))
+        try:
+            model.load_state_dict(saved["actor_state_dict"])
+        except (KeyError, RuntimeError) as exc:
+            raise LabError(f"checkpoint {checkpoint.name} holds no actor matching its own config:"
+                           f" {_first_line(exc)}", "the checkpoint is damaged; pick another"
+                           ) from exc
+        return Policy(_deterministic_actor(model), _normalizer(model)).eval()
+
+
+def _actor_kwargs(checkpoint: Path, actor: dict[str, Any]) -> dict[str, Any]:
+    """MLPModel's arguments from the saved actor config. RSL-RL resolves class names to any
+    importable callable, so only the classes this plugin writes are accepted: loading a
+    checkpoint must not run code named in it."""
+    kwargs = dict(actor)
+    distribution = kwargs.get("distribution_cfg") or {}
+    if (kwargs.pop("class_name", None) != MODEL
+            or distribution.get("class_name", DISTRIBUTION) != DISTRIBUTION):
+        raise LabError(f"checkpoint {checkpoint.name} has an actor other than a {MODEL} with a "
+                       f"{DISTRIBUTION}", "pick a checkpoint written by lab's rsl_rl plugin")
+    return kwargs
+
+
+@contextlib.contextmanager
+def _one_torch_thread(device: str) -> Iterator[None]:
+    """On CPU, run the networks on one thread: RSL-RL's MLPs see batches of a few thousand
+    small rows, where torch's thread pool only adds overhead, and its spinning threads fight
+    MuJoCo's for the cores (measured: 6 cartpole iterations took 28 s with 2 threads on a
+    loaded 2-core machine, 2 s with 1)."""
+    if torch.device(device).type != "cpu":
+        yield
+        return
+    previous = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(previous)
+
+
+def _deterministic_actor(model: nn.Module) -> nn.Module:
+    """MLP then the distribution's mean: what RSL-RL's own JIT/ONNX export runs."""
+    if model.distribution is None:
+        return model.mlp
+    return nn.Sequential(model.mlp, model.distribution.as_deterministic_output_module())
+
+
+def _normalizer(model: nn.Module) -> ObsNormalizer | None:
+    """RSL-RL's EmpiricalNormalization computes (x - mean) / (std + eps); ObsNormalizer computes
+    (x - mean) / sqrt(var + eps), so pass var = (std + eps)² and eps = 0 for the same result."""
+    if not model.obs_normalization:
+        return None
+    norm = model.obs_normalizer
+    return ObsNormalizer(norm.mean, (norm.std + norm.eps) ** 2, 0.0, None)
+
+
+def _read_checkpoint(path: Path, device: str) -> dict[str, Any]:
+    # weights_only: a checkpoint is tensors and plain data; never run pickled code from one.
+    try:
+        saved = torch.load(path, map_location=device, weights_only=True)
+    except (OSError, RuntimeError, EOFError, pickle.UnpicklingError) as exc:
+        raise LabError(f"checkpoint {path} is not a loadable RSL-RL model: {_first_line(exc)}",
+                       "pick another checkpoint with --checkpoint") from exc
+    if not isinstance(saved, dict):
+        raise LabError(f"checkpoint {path} is not a loadable RSL-RL model: it holds a "
+                       f"{type(saved).__name__}", "pick another checkpoint with --checkpoint")
+    return saved
+
+
+def _first_line(exc: BaseException) -> str:
+    text = str(exc).strip()
+    return text.splitlines()[0] if text else type(exc).__name__
