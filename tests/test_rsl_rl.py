@@ -19,7 +19,7 @@ from rich.console import Console
 from rsl_rl.models import MLPModel
 from tensordict import TensorDict
 
-from labcli import play, plugins, runs, training
+from labcli import plugins, runs, training
 from labcli.env import LabVecEnv
 from labcli.errors import LabError
 from labcli.framework import ObsNormalizer
@@ -224,6 +224,8 @@ def test_unreadable_checkpoints_raise_lab_error(tmp_path, trained, content):
 
 @pytest.mark.slow
 def test_cartpole_defaults_reach_success(tmp_path):
+    from labcli import play  # `lab play`'s library side
+
     outcome = training.train("cartpole", "rsl_rl", logs_dir=tmp_path,
                              console=Console(file=io.StringIO()))
     assert outcome.summary["success_rate"] >= 0.95
