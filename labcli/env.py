@@ -110,7 +110,8 @@ class LabVecEnv(gym.vector.VectorEnv):
 
         self._reset_envs(done)
         obs = self._observations()
-        info = {"final_obs": final_obs, "_final_obs": done, "episode": episode, "_episode": done}
+        info = {"final_obs": final_obs, "_final_obs": done, "episode": episode, "_episode": done,
+                "terminations": terminated}
         return obs, reward, terminated_any, truncated, info
 
     def close(self, **kwargs: Any) -> None:

@@ -1,0 +1,115 @@
+"""`lab play` as a library call: load a run's policy and roll it out deterministically."""
+
+from __future__ import annotations
+
+import statistics
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import torch
+
+from labcli import config, plugins, runs
+from labcli.env import LabVecEnv
+from labcli.errors import LabError
+from labcli.framework import Checkpoint, Framework, Policy
+from labcli.task import TaskSpec
+from labcli.training import find_checkpoint
+
+TIME_OUT = "time_out"
+
+
+@dataclass
+class LoadedPolicy:
+    run: runs.Run
+    spec: TaskSpec
+    framework: Framework
+    checkpoint: Checkpoint
+    env: LabVecEnv
+    policy: Policy
+
+
+def load(*, run_dir: Path | None = None, checkpoint: Path | None = None,
+         task: str | None = None, framework: str | None = None, logs_dir: Path | None = None,
+         num_envs: int | None = None, seed: int = 0) -> LoadedPolicy:
+    """Find the run (a checkpoint's, `run_dir`, or the newest matching one), rebuild its env
+    from params/env.yaml on the CPU and load the checkpoint as a Policy."""
+    if num_envs is not None and num_envs <= 0:
+        raise LabError(f"--num-envs must be a positive integer, got {num_envs}")
+    logs_dir = logs_dir or runs.default_logs_dir()
+    if checkpoint is not None:
+        run = runs.open_run(checkpoint.parent if checkpoint.is_file() else checkpoint)
+    elif run_dir is not None:
+        run = runs.open_run(run_dir)
+    else:
+        run = runs.latest(logs_dir, task, framework)
+    manifest = run.manifest()
+    spec = plugins.get_task(manifest["task"])
+    fw = plugins.get_framework(manifest["framework"])
+    _, ckpt = find_checkpoint(str(checkpoint or run.dir), logs_dir, spec.name, fw)
+    layers = [run.params(runs.ENV_PARAMS)]
+    if num_envs is not None:
+        layers.append({"num_envs": num_envs})
+    env_cfg = config.build(spec.config, "env", layers)
+    env = LabVecEnv(spec, env_cfg, backend="cpu", device="cpu", seed=seed)
+    try:
+        policy = fw.load_policy(ckpt.path, env)
+    except BaseException:
+        env.close()
+        raise
+    return LoadedPolicy(run, spec, fw, ckpt, env, policy)
+
+
+@dataclass
+class Episodes:
+    returns: list[float] = field(default_factory=list)
+    lengths: list[int] = field(default_factory=list)
+    successes: list[bool] = field(default_factory=list)
+    causes: list[str] = field(default_factory=list)
+
+    @property
+    def success_rate(self) -> float:
+        return sum(self.successes) / len(self.successes) if self.successes else 0.0
+
+    @property
+    def mean_return(self) -> float:
+        return statistics.fmean(self.returns) if self.returns else float("nan")
+
+
+def rollout(env: LabVecEnv, act, episodes: int, seed: int = 0) -> Episodes:
+    """Step `env` with `act(obs) -> actions` until `episodes` episodes have ended. Each env
+    contributes its episodes in order, so with num_envs >= episodes none favours short ones."""
+    out = Episodes()
+    obs, _ = env.reset(seed=seed)
+    names = env.termination_names
+    taken = torch.zeros(env.num_envs, dtype=torch.long)
+    per_env = -(-episodes // env.num_envs)  # ceil: the fewest episodes each env must give
+    while len(out.returns) < episodes:
+        with torch.inference_mode():
+            obs, _, terminated, truncated, info = env.step(act(obs))
+        done = (terminated | truncated).cpu()
+        if not done.any():
+            continue
+        ep = info["episode"]
+        causes = info["terminations"].cpu()
+        for i in done.nonzero().flatten().tolist():
+            if taken[i] >= per_env or len(out.returns) >= episodes:
+                continue
+            taken[i] += 1
+            out.returns.append(float(ep["r"][i]))
+            out.lengths.append(int(ep["l"][i]))
+            out.successes.append(bool(ep["success"][i]))
+            hit = causes[i].nonzero().flatten().tolist()
+            out.causes.append(names[hit[0]] if hit else TIME_OUT)
+    return out
+
+
+def play(*, episodes: int = 10, seed: int = 0, **where) -> tuple[LoadedPolicy, Episodes]:
+    if episodes <= 0:
+        raise LabError(f"--episodes must be a positive integer, got {episodes}")
+    if where.get("num_envs") is None:
+        where["num_envs"] = min(episodes, 256)
+    loaded = load(seed=seed, **where)
+    try:
+        return loaded, rollout(loaded.env, loaded.policy, episodes, seed)
+    finally:
+        loaded.env.close()
