@@ -35,8 +35,10 @@ AT_REST = {"reset_cart_pos": (0.0, 0.0), "reset_pole_angle": (0.0, 0.0),
 
 
 @pytest.fixture
-def make_env() -> Iterator[Callable[..., LabVecEnv]]:
+def make_env(tmp_path, monkeypatch) -> Iterator[Callable[..., LabVecEnv]]:
     """Builds cartpole envs on the cpu backend and closes their thread pools after the test."""
+    # MuJoCo appends its warnings (the unstable-state tests cause some) to ./MUJOCO_LOG.TXT.
+    monkeypatch.chdir(tmp_path)
     made: list[LabVecEnv] = []
 
     def make(num_envs: int = NUM_ENVS, seed: int = 0, **overrides) -> LabVecEnv:
