@@ -195,6 +195,14 @@ def test_example_defaults_reach_success_with_sb3(example, tmp_path, monkeypatch)
     assert outcome.summary["success_rate"] >= 0.9
 
 
+@pytest.mark.parametrize("path", ["pyproject.toml", "src/lab_example_reach/plugin.py",
+                                  "src/lab_example_reach/reach.py",
+                                  "src/lab_example_reach/reach.xml"])
+def test_docs_show_the_example_files_as_they_are(path):
+    docs = (Path(__file__).parents[1] / "docs" / "plugins.md").read_text()
+    assert (EXAMPLE / path).read_text().rstrip("\n") in docs, f"docs/plugins.md lacks {path}"
+
+
 # Plugins registered into the manager for one test ----------------------------------------------
 @pytest.fixture
 def register_plugin() -> Iterator[Callable[[object, str], None]]:
