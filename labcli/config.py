@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import copy
 import difflib
+import typing
 from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
@@ -29,15 +30,19 @@ def parse_set(items: Iterable[str]) -> dict[str, dict[str, Any]]:
                            "e.g. --set agent.learning_rate=3e-4 or --set env.num_envs=32")
         try:
             value = yaml.safe_load(raw) if raw.strip() else ""
-        except yaml.YAMLError:
+        except Exception:  # PyYAML raises more than YAMLError (e.g. ValueError for 2020-13-45)
             value = raw
-        _set_path(out[section], path.split("."), value)
+        _set_path(out[section], section, path.split("."), value)
     return out
 
 
-def _set_path(tree: dict[str, Any], keys: list[str], value: Any) -> None:
-    for key in keys[:-1]:
+def _set_path(tree: dict[str, Any], section: str, keys: list[str], value: Any) -> None:
+    for depth, key in enumerate(keys[:-1]):
         tree = tree.setdefault(key, {})
+        if not isinstance(tree, dict):
+            parent = ".".join([section, *keys[:depth + 1]])
+            raise LabError(f"--set {parent} holds a value, so it has no key '{keys[depth + 1]}'",
+                           f"set either {parent} or keys below it, not both")
     tree[keys[-1]] = value
 
 
@@ -90,12 +95,25 @@ def _explain(exc: ValidationError, model: type[BaseModel], section: str) -> LabE
         return LabError(f"unknown key '{key}'",
                         hint + f"keys of {section}: {', '.join(fields)}")
     field = model.model_fields.get(str(err["loc"][0]))
-    expected = _type_name(field.annotation) if field else "a valid value"
+    expected = _type_name(_annotation_at(field.annotation, len(err["loc"]) - 1)) if field \
+        else "a valid value"
     return LabError(f"bad value for '{key}': {err['msg']} (got {err.get('input')!r})",
                     f"expected {expected}")
 
 
+def _annotation_at(annotation: Any, depth: int) -> Any:
+    """The type of an item `depth` levels inside a container field (dict value, list item)."""
+    for _ in range(depth):
+        args = [a for a in typing.get_args(annotation) if a is not type(None)]
+        if not args:
+            break
+        annotation = args[-1]
+    return annotation
+
+
 def _type_name(annotation: Any) -> str:
+    if typing.get_origin(annotation) is typing.Literal:
+        return "one of " + ", ".join(repr(a) for a in typing.get_args(annotation))
     return getattr(annotation, "__name__", None) or str(annotation).replace("typing.", "")
 
 

@@ -65,16 +65,22 @@ class Registry:
 
 def _load_entry_points(failures: list[PluginFailure]) -> None:
     for ep in entry_points(group=GROUP):
-        if pm.has_plugin(ep.name):
-            continue
         dist = ep.dist.name if ep.dist else "?"
         version = ep.dist.version if ep.dist else "?"
+        provider = Provider(ep.name, dist, version)
+        if pm.has_plugin(ep.name):
+            loaded = _dists.get(ep.name)
+            if loaded is not None and loaded.dist != dist:
+                failures.append(PluginFailure(ep.name, provider, (
+                    f"entry point name '{ep.name}' is already taken by {loaded.dist}; "
+                    "rename one of the two")))
+            continue
         try:
             pm.register(ep.load(), name=ep.name)
         except Exception as exc:  # a broken third-party plugin must not break the others
-            failures.append(PluginFailure(ep.name, Provider(ep.name, dist, version), _one_line(exc)))
+            failures.append(PluginFailure(ep.name, provider, _one_line(exc)))
             continue
-        _dists[ep.name] = Provider(ep.name, dist, version)
+        _dists[ep.name] = provider
 
 
 _dists: dict[str, Provider] = {}

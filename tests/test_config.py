@@ -108,9 +108,6 @@ def test_an_unknown_section_is_a_lab_error(section, path, raw):
         config.parse_set([f"{section}.{path}={raw}"])
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "config.py parse_set: only yaml.YAMLError is caught; PyYAML raises ValueError/AttributeError "
-    "for values such as 2020-13-45 or '!!int x', which escape as tracebacks"))
 @given(sections, key_paths, st.text(max_size=20))
 @example("env", "tag", "2020-13-45")  # a YAML timestamp with month 13
 @example("agent", "x", "!!int x")
@@ -119,9 +116,6 @@ def test_any_well_keyed_set_item_parses_or_is_a_lab_error(section, path, raw):
         config.parse_set([f"{section}.{path}={raw}"])
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "config.py _set_path: setting a key below one that already holds a value raises TypeError "
-    "('int' object does not support item assignment) instead of a LabError"))
 def test_setting_below_a_value_is_a_lab_error():
     with pytest.raises(LabError, match="env.reward_weights"):
         config.parse_set(["env.reward_weights=1", "env.reward_weights.alive=2"])
@@ -180,9 +174,6 @@ def test_num_envs_is_a_positive_int(n):
             resolve(overrides=[f"env.num_envs={n}"])
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "config.py _type_name looks at the top-level annotation only: a bad reward weight is "
-    "'expected dict' though a float is what is expected"))
 def test_a_bad_reward_weight_names_float():
     with pytest.raises(LabError) as err:
         resolve(overrides=["env.reward_weights.alive=lots"])
@@ -190,10 +181,6 @@ def test_a_bad_reward_weight_names_float():
     assert err.value.hint == "expected float"
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "cartpole.py re-declares decimation and episode_length_s as plain `int = 2` / "
-    "`float = 5.0`, which drops TaskConfig's Field(gt=0): decimation 0 then fails in LabVecEnv "
-    "with ZeroDivisionError, episode_length_s 0 times out every step"))
 @pytest.mark.parametrize("item", ["env.decimation=0", "env.episode_length_s=0"])
 def test_task_config_keeps_the_base_constraints(item):
     with pytest.raises(LabError, match=item.partition("=")[0]):

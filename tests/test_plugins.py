@@ -347,10 +347,6 @@ def test_two_distributions_registering_one_task_name_is_a_lab_error(tmp_path, mo
         assert result.exit_code == 2 and "lab-cartpole-fork" in result.stderr
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "plugins.py _load_entry_points skips an entry point whose name is already a plugin "
-    "(`if pm.has_plugin(ep.name): continue`), so a second distribution using the same entry "
-    "point name is silently never loaded nor reported"))
 def test_a_clashing_entry_point_name_is_loaded_or_reported(tmp_path):
     write_dist(tmp_path, "lab-cartpole-pro", "1.0", "cartpole",
                CARTPOLE_FORK.format(name="cartpole_pro"))

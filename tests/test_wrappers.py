@@ -119,9 +119,6 @@ def test_env_wrapper_adapter_and_framework_wrapper_build_in_order(env):
     assert not np.allclose(wrapped.get_original_obs(), raw.numpy())
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "lab_sb3/adapter.py: Sb3VecEnv calls VecEnv.__init__ before setting self.env, so SB3's "
-    "get_attr('render_mode') fails and warns 'The `render_mode` attribute is not defined'"))
 def test_sb3_adapter_builds_without_warnings(env):
     with warnings.catch_warnings():
         warnings.simplefilter("error")

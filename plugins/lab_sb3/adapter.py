@@ -17,8 +17,8 @@ from stable_baselines3.common.vec_env.base_vec_env import VecEnv
 
 class Sb3VecEnv(VecEnv):
     def __init__(self, env: Any):
+        self.env = env  # first: VecEnv.__init__ reads render_mode through get_attr
         super().__init__(env.num_envs, env.single_observation_space, env.single_action_space)
-        self.env = env
         self._actions: np.ndarray | None = None
 
     def reset(self) -> np.ndarray:
