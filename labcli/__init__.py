@@ -1,4 +1,4 @@
-"""lab: train, play and export RL policies for MuJoCo robots with the learning library you prefer."""
+"""lab: train, play and export RL policies for MuJoCo robots with the library you prefer."""
 
 from importlib.metadata import PackageNotFoundError, version
 

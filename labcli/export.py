@@ -5,7 +5,6 @@ from __future__ import annotations
 import contextlib
 import enum
 import io
-import json
 from dataclasses import dataclass
 from pathlib import Path
 

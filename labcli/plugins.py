@@ -13,7 +13,9 @@ from labcli import hookspecs
 from labcli.errors import LabError, unknown_name
 
 GROUP = "lab"
-KINDS = {"task": "register_tasks", "framework": "register_frameworks", "wrapper": "register_wrappers"}
+KINDS = {
+    "task": "register_tasks", "framework": "register_frameworks", "wrapper": "register_wrappers",
+}
 
 pm = pluggy.PluginManager(GROUP)
 pm.add_hookspecs(hookspecs)

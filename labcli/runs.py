@@ -1,4 +1,4 @@
-"""Run directories: logs/<framework>/<task>/<YYYY-mm-dd_HH-MM-SS>[_<name>]/ and what lies in them."""
+"""Run directories, logs/<framework>/<task>/<YYYY-mm-dd_HH-MM-SS>[_<name>]/, and their files."""
 
 from __future__ import annotations
 

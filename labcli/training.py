@@ -1,4 +1,4 @@
-"""`lab train` as a library call: resolve config, make the run dir, build env and pipeline, train."""
+"""`lab train` as a library call: resolve config, make the run dir, build env and pipeline."""
 
 from __future__ import annotations
 

@@ -5,7 +5,6 @@ from __future__ import annotations
 import contextlib
 import io
 import pickle
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any, Literal
 
@@ -18,7 +17,7 @@ from torch import nn
 
 from lab_rsl_rl.adapter import OBS_GROUP, RslRlVecEnv
 from labcli.errors import LabError
-from labcli.framework import AgentConfig, Framework, ObsNormalizer, Policy
+from labcli.framework import AgentConfig, Framework, ObsNormalizer, Policy, one_torch_thread
 from labcli.training import TrainContext
 from labcli.wrappers import Stage, Step, WrapperSpec
 
@@ -173,7 +172,7 @@ class RslRlFramework(Framework):
 
     def train(self, env: RslRlVecEnv, ctx: TrainContext) -> None:
         cfg: RslRlPpoConfig = ctx.cfg  # type: ignore[assignment]
-        with _one_torch_thread(ctx.device):
+        with one_torch_thread(ctx.device):
             runner = LabRunner(env, cfg, ctx)
             if ctx.resume is not None:
                 runner.resume(ctx.resume.path)
@@ -221,23 +220,6 @@ def _actor_kwargs(checkpoint: Path, actor: dict[str, Any]) -> dict[str, Any]:
         raise LabError(f"checkpoint {checkpoint.name} has an actor other than a {MODEL} with a "
                        f"{DISTRIBUTION}", "pick a checkpoint written by lab's rsl_rl plugin")
     return kwargs
-
-
-@contextlib.contextmanager
-def _one_torch_thread(device: str) -> Iterator[None]:
-    """On CPU, run the networks on one thread: RSL-RL's MLPs see batches of a few thousand
-    small rows, where torch's thread pool only adds overhead, and its spinning threads fight
-    MuJoCo's for the cores (measured: 6 cartpole iterations took 28 s with 2 threads on a
-    loaded 2-core machine, 2 s with 1)."""
-    if torch.device(device).type != "cpu":
-        yield
-        return
-    previous = torch.get_num_threads()
-    torch.set_num_threads(1)
-    try:
-        yield
-    finally:
-        torch.set_num_threads(previous)
 
 
 def _deterministic_actor(model: nn.Module) -> nn.Module:

@@ -16,11 +16,11 @@ from stable_baselines3.common.logger import configure
 from stable_baselines3.common.vec_env import VecNormalize
 from torch import nn
 
+from lab_sb3.adapter import Sb3VecEnv
 from labcli.errors import LabError
-from labcli.framework import AgentConfig, Framework, ObsNormalizer, Policy
+from labcli.framework import AgentConfig, Framework, ObsNormalizer, Policy, one_torch_thread
 from labcli.training import TrainContext
 from labcli.wrappers import Stage, Step, WrapperSpec
-from lab_sb3.adapter import Sb3VecEnv
 
 ACTIVATIONS = {"tanh": nn.Tanh, "relu": nn.ReLU, "elu": nn.ELU}
 
@@ -124,8 +124,10 @@ class Sb3Framework(Framework):
 
         callback = _LabCallback(ctx, save)
         remaining = cfg.max_iterations - ctx.start_iteration
-        model.learn(total_timesteps=remaining * cfg.n_steps * env.num_envs, callback=callback,
-                    reset_num_timesteps=ctx.resume is None, progress_bar=False)
+        with one_torch_thread(ctx.device):
+            model.learn(total_timesteps=remaining * cfg.n_steps * env.num_envs,
+                        callback=callback, reset_num_timesteps=ctx.resume is None,
+                        progress_bar=False)
         if not ctx.stop_requested:
             callback.end_iteration()  # the last update has no next rollout start
         ctx.save(save)

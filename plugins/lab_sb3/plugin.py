@@ -1,7 +1,7 @@
 """Registers SB3 through the same hooks a third-party framework plugin would use."""
 
-from labcli.hookspecs import hookimpl
 from lab_sb3.framework import Sb3Framework
+from labcli.hookspecs import hookimpl
 
 FRAMEWORK = Sb3Framework()
 

@@ -9,8 +9,6 @@ preprocessors) plus a `lab` entry with the sizes and network shape needed to reb
 from __future__ import annotations
 
 import pickle
-from collections.abc import Iterator
-from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, Literal
 
@@ -27,7 +25,7 @@ from torch import nn
 
 from lab_skrl.adapter import SkrlEnv
 from labcli.errors import LabError
-from labcli.framework import AgentConfig, Framework, ObsNormalizer, Policy
+from labcli.framework import AgentConfig, Framework, ObsNormalizer, Policy, one_torch_thread
 from labcli.training import TrainContext
 from labcli.wrappers import Stage, Step, WrapperSpec
 
@@ -181,7 +179,7 @@ class SkrlFramework(Framework):
             torch.save({**modules, META: {**meta, "steps": steps}}, path)
 
         agent.enable_training_mode(True)
-        with _one_torch_thread_on_cpu(ctx.device):
+        with one_torch_thread(ctx.device):
             obs, _ = env.reset()
             for iteration in range(ctx.start_iteration + 1, cfg.max_iterations + 1):
                 obs, complete = _collect_and_update(agent, env, obs, ctx, iteration)
@@ -241,22 +239,6 @@ def _collect_and_update(agent: PPO, env: SkrlEnv, obs: torch.Tensor, ctx: TrainC
         agent.post_interaction(timestep=t, timesteps=total)  # the update needs gradients
         obs = next_obs
     return obs, True
-
-
-@contextmanager
-def _one_torch_thread_on_cpu(device: str) -> Iterator[None]:
-    """Policy-sized MLPs train faster on one intra-op thread: more only add synchronization,
-    and on a busy machine the threads wait on each other (backward 44 ms vs 1 ms measured on
-    2 shared cores). The simulator keeps its own threads."""
-    if torch.device(device).type != "cpu":
-        yield
-        return
-    previous = torch.get_num_threads()
-    torch.set_num_threads(1)
-    try:
-        yield
-    finally:
-        torch.set_num_threads(previous)
 
 
 def _pop_tracking(agent: PPO) -> dict[str, float]:

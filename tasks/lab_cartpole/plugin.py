@@ -1,8 +1,8 @@
 """Registers the built-in tasks through the same hook a third-party package would use."""
 
+from lab_cartpole.cartpole import MODEL, Cartpole, CartpoleConfig
 from labcli.hookspecs import hookimpl
 from labcli.task import TaskSpec
-from lab_cartpole.cartpole import MODEL, Cartpole, CartpoleConfig
 
 
 @hookimpl
