@@ -5,6 +5,8 @@ from __future__ import annotations
 import contextlib
 import enum
 import io
+import logging
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -50,10 +52,28 @@ def _check_observations(loaded: LoadedPolicy) -> torch.Tensor:
 
 def _export_onnx(policy: torch.nn.Module, example: torch.Tensor, path: Path) -> None:
     batch = torch.export.Dim("batch")
-    with contextlib.redirect_stdout(io.StringIO()):  # the exporter narrates its passes
-        torch.onnx.export(policy, (example[:2],), str(path), input_names=["obs"],
-                          output_names=["actions"], dynamic_shapes={"obs": {0: batch}},
-                          external_data=False, verbose=False)
+    # The exporter narrates its passes, warns about torch internals and logs "torchvision is not
+    # installed": nothing a user can act on.
+    registration = logging.getLogger("torch.onnx._internal.exporter._registration")
+    level = registration.level
+    registration.setLevel(logging.ERROR)
+    try:
+        with contextlib.redirect_stdout(io.StringIO()), warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            torch.onnx.export(policy, (example[:2],), str(path), input_names=["obs"],
+                              output_names=["actions"], dynamic_shapes={"obs": {0: batch}},
+                              external_data=False, verbose=False)
+    finally:
+        registration.setLevel(level)
+
+
+def _export_jit(policy: torch.nn.Module, obs: torch.Tensor, path: Path) -> np.ndarray:
+    """TorchScript is deprecated in favour of torch.export, but it is what C++ and ROS
+    deployments load today; the warnings say nothing a user can act on."""
+    with warnings.catch_warnings(), torch.no_grad():
+        warnings.simplefilter("ignore", DeprecationWarning)
+        torch.jit.save(torch.jit.trace(policy, obs[:2]), str(path))
+        return torch.jit.load(str(path))(obs).numpy()
 
 
 def _run_onnx(path: Path, obs: torch.Tensor) -> np.ndarray:
@@ -82,10 +102,7 @@ def export(fmt: Format | str, *, run_dir: Path | None = None, checkpoint: Path |
             got = _run_onnx(path, obs)
         else:
             path = out_dir / "policy.pt"
-            with torch.no_grad():
-                torch.jit.save(torch.jit.trace(policy, obs[:2]), str(path))
-            with torch.inference_mode():
-                got = torch.jit.load(str(path))(obs).numpy()
+            got = _export_jit(policy, obs, path)
         diff = float(np.max(np.abs(got - expected)))
         if not diff < TOLERANCE:
             raise LabError(f"exported {path.name} differs from the torch policy by {diff:.2e} "
