@@ -15,7 +15,10 @@ def register_tasks(register):
         description="push a cart to swing its pole upright from up to ±45° and balance it",
         success="pole within 0.2 rad of upright and cart in bounds at the 5 s time-out",
         framework_defaults={
-            "sb3": {"env": {"num_envs": 64}, "agent": {}},
+            "sb3": {"env": {"num_envs": 128}, "agent": {
+                "max_iterations": 200, "n_steps": 32, "batch_size": 1024, "n_epochs": 20,
+                "learning_rate": 5e-4, "activation": "elu", "vf_coef": 1.0,
+                "max_grad_norm": 1.0}},
             "rsl_rl": {"env": {"num_envs": 128}, "agent": {
                 "max_iterations": 200, "num_steps_per_env": 32, "num_learning_epochs": 8,
                 "num_mini_batches": 8, "desired_kl": 0.005, "entropy_coef": 0.0,
