@@ -1,0 +1,299 @@
+"""The framework conformance suite: checks every framework plugin must pass, built-in or not.
+
+A plugin's own tests call `check_framework("myfw", tmp_path, SMALL)` (or the single checks) with
+`--set` overrides that make its agent tiny. Each check trains the real cartpole task at a small
+size and fails with an AssertionError that names the framework and what it got wrong.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from rich.console import Console
+
+from labcli import metrics, plugins, runs, training, wrappers
+from labcli.env import LabVecEnv
+from labcli.framework import Framework, Policy
+from labcli.wrappers import Stage
+
+TASK = "cartpole"
+NUM_ENVS = 4
+# Cartpole steps 0.02 s: 0.1 s episodes time out after 5 steps, so every iteration ends some.
+SHORT_EPISODE = "env.episode_length_s=0.1"
+EXPORT_TOLERANCE = 1e-5
+
+
+@dataclass
+class ProbeStep:
+    """One step through an adapter, as the library sees it: anything array-like, `[num_envs]`
+    (observations `[num_envs, ...]`). `truncated` are the time-outs the library bootstraps on."""
+
+    obs: Any
+    reward: Any
+    terminated: Any
+    truncated: Any
+
+
+# Steps the wrapped env (pipeline applied) with the given actions and reports what the library
+# receives. Each library exposes time-outs its own way, so the plugin provides this.
+Probe = Callable[[Any, torch.Tensor], ProbeStep]
+
+
+def _array(x: Any) -> np.ndarray:
+    return torch.as_tensor(x).detach().cpu().numpy() if not isinstance(x, np.ndarray) else x
+
+
+def _train(name: str, logs_dir: Path, iterations: int, overrides: Sequence[str],
+           num_envs: int = NUM_ENVS, **kwargs: Any) -> training.TrainOutcome:
+    return training.train(TASK, name, num_envs=num_envs, max_iterations=iterations,
+                          overrides=list(overrides), logs_dir=logs_dir, seed=kwargs.pop("seed", 0),
+                          console=Console(file=io.StringIO()), command=["lab", "test"], **kwargs)
+
+
+def _env(num_envs: int = NUM_ENVS, **cfg: Any) -> LabVecEnv:
+    spec = plugins.get_task(TASK)
+    return LabVecEnv(spec, spec.config(num_envs=num_envs, **cfg))
+
+
+def _scalars(run_dir: Path) -> dict[str, list[tuple[int, float]]]:
+    """Every TensorBoard scalar in `run_dir` as (step, value) pairs, by tag."""
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    out: dict[str, list[tuple[int, float]]] = {}
+    for path in sorted(run_dir.glob("events.out.tfevents.*")):
+        acc = EventAccumulator(str(path), size_guidance={"scalars": 0})
+        acc.Reload()
+        for tag in acc.Tags()["scalars"]:
+            out.setdefault(tag, []).extend((e.step, e.value) for e in acc.Scalars(tag))
+    return out
+
+
+def check_adapter(name: str, probe: Probe | None = None) -> None:
+    """The framework registers its adapter, its default pipeline validates and wraps a LabVecEnv;
+    with a `probe`, zero actions through the adapter give `[num_envs]` batches, and time-outs
+    reach the library flagged apart from terminations."""
+    fw = plugins.get_framework(name)
+    assert isinstance(fw, Framework), f"{name}: registered object is not a labcli Framework"
+    owned = list(fw.wrappers())
+    adapters = [s for s in owned if s.stage is Stage.ADAPTER]
+    assert adapters and owned[0] is adapters[0], f"{name}: wrappers() must list its adapter first"
+    for spec in owned:
+        assert plugins.get_wrapper(spec.name) is spec, f"{name}: wrapper {spec.name} not registered"
+    cfg = fw.agent_config()
+    pipeline = fw.pipeline(cfg)
+    wrappers.validate(pipeline, name)  # a LabError names the wrapper out of place
+    assert any(step.spec is adapters[0] for step in pipeline), (
+        f"{name}: the default pipeline does not use the adapter {adapters[0].name}")
+    if probe is None:
+        env = _env()
+        try:
+            wrappers.apply(env, pipeline, name)
+        finally:
+            env.close()
+        return
+    for what, env_cfg, steps, expect_term in (
+        ("time-out", {"episode_length_s": 0.1}, 5, False),
+        ("termination", {"cart_bound": 0.1, "reset_cart_pos": (0.5, 0.5)}, 1, True),
+    ):
+        env = _env(**env_cfg)
+        try:
+            env.reset(seed=0)  # Gymnasium's contract: reset before the first step
+            wrapped = wrappers.apply(env, pipeline, name)
+            for i in range(steps):
+                got = probe(wrapped, torch.zeros(NUM_ENVS, *env.single_action_space.shape))
+                obs, reward = _array(got.obs), _array(got.reward).reshape(-1)
+                term, trunc = (_array(got.terminated).reshape(-1).astype(bool),
+                               _array(got.truncated).reshape(-1).astype(bool))
+                for label, arr in (("observations", obs), ("rewards", reward),
+                                   ("terminated", term), ("truncated", trunc)):
+                    assert arr.shape[0] == NUM_ENVS, (
+                        f"{name}: adapter gave {label} of batch {arr.shape[0]}, not {NUM_ENVS}")
+                assert obs.shape[1:] == env.single_observation_space.shape, (
+                    f"{name}: adapter observation shape {obs.shape[1:]}")
+                if i < steps - 1:
+                    assert not (term | trunc).any(), f"{name}: episodes ended early at step {i}"
+            assert term.all() == expect_term and not (term & trunc).any(), (
+                f"{name}: on a {what}, terminated={term.tolist()} truncated={trunc.tolist()}")
+            assert trunc.all() != expect_term, (
+                f"{name}: a {what} must {'not ' if expect_term else ''}be flagged as a time-out "
+                f"(truncated={trunc.tolist()})")
+        finally:
+            env.close()
+
+
+def check_training_outputs(name: str, tmp_path: Path, overrides: Sequence[str] = (),
+                           iterations: int = 3) -> training.TrainOutcome:
+    """A few iterations write checkpoints named by `checkpoint_path` at the save interval and at
+    the end, a consistent summary.json and manifest, and the common TensorBoard tags."""
+    fw = plugins.get_framework(name)
+    outcome = _train(name, tmp_path, iterations,
+                     [*overrides, SHORT_EPISODE, "agent.save_interval=2"])
+    run_dir = outcome.run.dir
+    expected = [fw.checkpoint_path(run_dir, i) for i in (2, iterations)]
+    for path in expected:
+        assert path.is_file(), f"{name}: no checkpoint {path.name} in {sorted(run_dir.iterdir())}"
+    found = [c.iteration for c in fw.checkpoints(run_dir)]
+    assert found == [2, iterations], f"{name}: checkpoints at iterations {found}, not [2, 3]"
+    assert not list(run_dir.glob(".tmp_*")), f"{name}: temporary files left in {run_dir}"
+    for file in (runs.ENV_PARAMS, runs.AGENT_PARAMS, runs.COMMAND, runs.MANIFEST, runs.SUMMARY):
+        assert (run_dir / file).is_file(), f"{name}: run dir lacks {file}"
+    summary = json.loads((run_dir / runs.SUMMARY).read_text())
+    assert summary["state"] == "finished", f"{name}: summary state {summary['state']}"
+    assert summary["iterations"] == iterations, f"{name}: summary iterations {summary}"
+    steps = summary["steps"]
+    assert steps > 0 and steps % (iterations * NUM_ENVS) == 0, (
+        f"{name}: summary steps {steps} is not a whole number of {NUM_ENVS}-env iterations")
+    assert summary["checkpoint"] == expected[-1].name, f"{name}: summary {summary['checkpoint']}"
+    assert summary["mean_return"] is not None, f"{name}: no episode stats reached the summary"
+    assert json.loads((run_dir / runs.MANIFEST).read_text())["state"] == "finished"
+    scalars = _scalars(run_dir)
+    env = _env(1)
+    try:
+        tags = [metrics.EPISODES, metrics.MEAN_RETURN, metrics.MEAN_LENGTH, metrics.SUCCESS_RATE,
+                metrics.STEPS_PER_S, metrics.INSTABILITIES,
+                *(metrics.REWARD_TERM + n for n in env.reward_names),
+                *(metrics.TERMINATION + n for n in env.termination_names)]
+    finally:
+        env.close()
+    missing = [t for t in tags if t not in scalars]
+    assert not missing, f"{name}: TensorBoard lacks {missing} (has {sorted(scalars)})"
+    last_step = max(step for step, _ in scalars[metrics.STEPS_PER_S])
+    assert last_step == steps, f"{name}: last TensorBoard step {last_step}, summary steps {steps}"
+    returns = [v for _, v in scalars[metrics.MEAN_RETURN]]
+    assert abs(returns[-1] - summary["mean_return"]) < 1e-4 * max(1.0, abs(returns[-1])), (
+        f"{name}: summary mean_return {summary['mean_return']} != last logged {returns[-1]}")
+    return outcome
+
+
+def _observations(n: int = 64) -> torch.Tensor:
+    """Real cartpole observations from random actions, plus wide random ones."""
+    env = _env(8)
+    try:
+        obs, _ = env.reset(seed=0)
+        out = [obs]
+        gen = torch.Generator().manual_seed(0)
+        for _ in range(n // 8 - 1):
+            obs, *_ = env.step(torch.rand(8, *env.single_action_space.shape, generator=gen) * 2 - 1)
+            out.append(obs)
+        real = torch.cat(out).float()
+    finally:
+        env.close()
+    return torch.cat([real, torch.randn(n, real.shape[1], generator=gen) * 3])
+
+
+def check_policy_roundtrip(name: str, tmp_path: Path, overrides: Sequence[str] = (),
+                           normalized: bool = True) -> Policy:
+    """The last checkpoint loads as a Policy that gives the same deterministic actions every
+    time it is loaded and called, in [-1, 1]; with `normalized`, the normalizer is inside."""
+    fw = plugins.get_framework(name)
+    outcome = _train(name, tmp_path, 2, [*overrides, SHORT_EPISODE])
+    checkpoint = fw.checkpoints(outcome.run.dir)[-1].path
+    obs = _observations()
+    actions = []
+    for num_envs in (NUM_ENVS, 16):  # the policy must not depend on the env's batch size
+        env = _env(num_envs)
+        try:
+            policy = fw.load_policy(checkpoint, env)
+        finally:
+            env.close()
+        assert isinstance(policy, Policy), f"{name}: load_policy returned {type(policy).__name__}"
+        assert not policy.training, f"{name}: load_policy must return the Policy in eval mode"
+        with torch.no_grad():
+            first, again = policy(obs), policy(obs)
+        assert torch.equal(first, again), f"{name}: the Policy is not deterministic"
+        assert first.shape == (len(obs), 1), f"{name}: action shape {tuple(first.shape)}"
+        assert first.abs().max() <= 1.0, f"{name}: actions outside [-1, 1]"
+        actions.append(first)
+    diff = (actions[0] - actions[1]).abs().max().item()
+    assert diff == 0.0, f"{name}: two loads of {checkpoint.name} differ by {diff:.2e}"
+    has_normalizer = not isinstance(policy.normalizer, torch.nn.Identity)
+    assert has_normalizer == normalized, (
+        f"{name}: Policy normalizer is {type(policy.normalizer).__name__}, but observation "
+        f"normalization is {'on' if normalized else 'off'}")
+    if normalized:
+        with torch.no_grad():
+            assert not torch.allclose(policy.normalizer(obs), obs), (
+                f"{name}: the Policy's normalizer leaves observations unchanged: not the trained "
+                "statistics")
+    return policy
+
+
+def check_resume(name: str, tmp_path: Path, overrides: Sequence[str] = ()) -> None:
+    """`checkpoint="latest"` continues the same run: iterations and steps go on from the
+    checkpoint, and the new checkpoints land in the same run dir."""
+    fw = plugins.get_framework(name)
+    first = _train(name, tmp_path, 2, [*overrides, SHORT_EPISODE])
+    per_iteration = first.summary["steps"] // 2
+    second = _train(name, tmp_path, 4, [*overrides, SHORT_EPISODE],
+                    checkpoint=training.LATEST)
+    assert second.run.dir == first.run.dir, f"{name}: resume made a new run dir"
+    assert second.summary["iterations"] == 4, (
+        f"{name}: resumed run ended at iteration {second.summary['iterations']}, not 4")
+    assert second.summary["steps"] == 4 * per_iteration, (
+        f"{name}: resumed run counts {second.summary['steps']} steps, not "
+        f"{4 * per_iteration} (the step count must continue from the checkpoint)")
+    found = [c.iteration for c in fw.checkpoints(first.run.dir)]
+    assert found[-1] == 4 and 2 in found, f"{name}: checkpoints after resume at {found}"
+    manifest = json.loads((first.run.dir / runs.MANIFEST).read_text())
+    assert manifest.get("resumed_from") == fw.checkpoint_path(first.run.dir, 2).name
+
+
+def check_export(name: str, tmp_path: Path, overrides: Sequence[str] = ()) -> float:
+    """The Policy exports to ONNX and matches torch within 1e-5; returns the max difference."""
+    from labcli.export import Format, export
+
+    fw = plugins.get_framework(name)
+    outcome = _train(name, tmp_path, 1, [*overrides, SHORT_EPISODE])
+    result = export(Format.onnx, run_dir=outcome.run.dir)
+    assert result.path.is_file(), f"{name}: no {result.path}"
+    import onnxruntime as ort
+
+    env = _env()
+    try:
+        policy = fw.load_policy(fw.checkpoints(outcome.run.dir)[-1].path, env)
+    finally:
+        env.close()
+    obs = _observations()
+    with torch.no_grad():
+        expected = policy(obs).numpy()
+    session = ort.InferenceSession(str(result.path), providers=["CPUExecutionProvider"])
+    got = session.run(None, {"obs": obs.numpy()})[0]
+    diff = float(np.max(np.abs(got - expected)))
+    assert result.max_abs_diff < EXPORT_TOLERANCE and diff < EXPORT_TOLERANCE, (
+        f"{name}: ONNX differs from torch by {max(diff, result.max_abs_diff):.2e}")
+    return diff
+
+
+def check_training_improves(name: str, tmp_path: Path, overrides: Sequence[str] = (),
+                            iterations: int = 40, num_envs: int = 8, seed: int = 0,
+                            factor: float = 1.5) -> tuple[float, float]:
+    """A short cartpole run must raise the mean episode return: the mean of the last three
+    logged values must exceed `factor` × the first. Returns (first, last)."""
+    outcome = _train(name, tmp_path, iterations, overrides, num_envs=num_envs, seed=seed)
+    returns = [v for _, v in sorted(_scalars(outcome.run.dir)[metrics.MEAN_RETURN])]
+    assert len(returns) >= 4, f"{name}: only {len(returns)} mean returns logged"
+    first, last = returns[0], float(np.mean(returns[-3:]))
+    assert last > factor * first, (
+        f"{name}: mean return went from {first:.2f} to {last:.2f} in {iterations} iterations "
+        f"(needs > {factor} x)")
+    return first, last
+
+
+def check_framework(name: str, tmp_path: Path, small_overrides: Sequence[str] = (),
+                    probe: Probe | None = None, normalized: bool = True,
+                    improve: bool = True) -> None:
+    """Every check above, each in its own subdirectory of `tmp_path`."""
+    check_adapter(name, probe)
+    check_training_outputs(name, tmp_path / "outputs", small_overrides)
+    check_policy_roundtrip(name, tmp_path / "policy", small_overrides, normalized)
+    check_resume(name, tmp_path / "resume", small_overrides)
+    check_export(name, tmp_path / "export", small_overrides)
+    if improve:
+        check_training_improves(name, tmp_path / "improve", small_overrides)
