@@ -68,8 +68,13 @@ class LabVecEnv(gym.vector.VectorEnv):
         self.episode_length = torch.zeros(n, dtype=torch.long, device=dev)
         self.episode_return = torch.zeros(n, device=dev)
         self.episode_terms = torch.zeros(n, len(self.reward_names), device=dev)
-        self._stats = torch.zeros(4 + len(self.reward_names) + len(self.termination_names),
-                                  dtype=torch.float64, device=dev)
+        k = len(self.reward_names)
+        self._weighted = torch.empty(n, k, device=dev)
+        # One row per env, one column per figure that `pop_stats` reports (see `_accumulate`).
+        self._ended = torch.empty(n, 4 + k + len(self.termination_names), dtype=torch.float64,
+                                  device=dev)
+        self._ended_t, self._ended_done = self._ended.t(), self._ended[:, 0]
+        self._stats = torch.zeros(self._ended.shape[1], dtype=torch.float64, device=dev)
         self._all = torch.ones(n, dtype=torch.bool, device=dev)
 
     # gymnasium API ---------------------------------------------------------------------------
@@ -82,26 +87,21 @@ class LabVecEnv(gym.vector.VectorEnv):
 
     def step(self, actions: torch.Tensor):
         actions = torch.as_tensor(actions, device=self.device, dtype=torch.float32)
-        bad_action = ~torch.isfinite(actions).all(dim=1)
-        self.task.apply_actions(actions.nan_to_num(0.0).clamp(-1.0, 1.0))
+        safe = actions.nan_to_num(0.0)
+        # nan_to_num changed exactly the non-finite entries (NaN equals nothing, inf != max).
+        bad_action = safe.ne(actions).any(dim=1)
+        self.task.apply_actions(safe.clamp_(-1.0, 1.0))
         self.sim.step(self.cfg.decimation)
         self.episode_length += 1
 
         causes = self.task.terminations()
         unstable = self.sim.unstable() | bad_action
         terminated = torch.stack([*causes.values(), unstable], dim=1)
-        terms = self.task.reward_terms()
-        terms = torch.stack([terms[name] for name in self.reward_names], dim=1).float()
-        # A diverged env's state is garbage: it earns nothing on its last step.
-        weighted = (terms * self._weights).nan_to_num(0.0, 0.0, 0.0) * ~unstable[:, None]
-        reward = weighted.sum(dim=1)
-        self.episode_return += reward
-        self.episode_terms += weighted
+        reward = self._reward(unstable)
 
-        time_out = self.episode_length >= self.max_episode_length
         terminated_any = terminated.any(dim=1)
-        truncated = time_out & ~terminated_any
-        done = terminated_any | truncated
+        done = terminated_any | (self.episode_length >= self.max_episode_length)
+        truncated = done ^ terminated_any  # timed out and not terminated
         final_obs = self._observations()
         success = self.task.success(truncated) & truncated
         episode = {"r": self.episode_return.clone(), "l": self.episode_length.clone(),
@@ -120,16 +120,12 @@ class LabVecEnv(gym.vector.VectorEnv):
     # statistics ------------------------------------------------------------------------------
     def _accumulate(self, done: torch.Tensor, success: torch.Tensor,
                     terminated: torch.Tensor) -> None:
-        d = done.double()
-        row = torch.cat([
-            d.sum().view(1),
-            (self.episode_return * d).sum().view(1),
-            (self.episode_length * d).sum().view(1),
-            success.double().sum().view(1),
-            (self.episode_terms * d[:, None]).sum(dim=0),
-            terminated.double().sum(dim=0),
-        ])
-        self._stats += row
+        """Add the ended episodes' figures to the running sums: a column per figure, summed
+        over the envs weighted by `done` in one matrix-vector product, not an op per figure."""
+        # float32 holds lengths exactly up to 2**24 steps, far beyond any time-out.
+        ends = torch.stack((done, self.episode_return, self.episode_length, success), dim=1)
+        torch.cat((ends, self.episode_terms, terminated), dim=1, out=self._ended)
+        self._stats.addmv_(self._ended_t, self._ended_done)
 
     def pop_stats(self) -> dict[str, float]:
         """Means over the episodes that ended since the last call, under `metrics` tags; empty
@@ -157,10 +153,22 @@ class LabVecEnv(gym.vector.VectorEnv):
     def _reset_envs(self, mask: torch.Tensor) -> None:
         self.sim.reset_to_defaults(mask)
         self.task.reset(mask, self.generator)
-        keep = ~mask
-        self.episode_length *= keep
-        self.episode_return *= keep
-        self.episode_terms *= keep[:, None]
+        self.episode_length.masked_fill_(mask, 0)
+        self.episode_return.masked_fill_(mask, 0.0)
+        self.episode_terms.masked_fill_(mask[:, None], 0.0)
+
+    def _reward(self, unstable: torch.Tensor) -> torch.Tensor:
+        """The weighted terms' sum; each weighted term also adds to its episode's total."""
+        terms = self.task.reward_terms()
+        weighted = torch.stack([terms[name] for name in self.reward_names], dim=1,
+                               out=self._weighted)
+        weighted.mul_(self._weights).nan_to_num_(0.0, 0.0, 0.0)
+        # A diverged env's state is garbage: it earns nothing on its last step.
+        weighted.masked_fill_(unstable[:, None], 0.0)
+        reward = weighted.sum(dim=1)
+        self.episode_return += reward
+        self.episode_terms += weighted
+        return reward
 
     def _observations(self) -> torch.Tensor:
         return self.task.observations().to(torch.float32).nan_to_num(0.0, 0.0, 0.0)

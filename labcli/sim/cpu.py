@@ -9,7 +9,7 @@ import numpy as np
 import torch
 from mujoco import rollout
 
-from labcli.sim import Sim
+from labcli.sim import UNSTABLE_VELOCITY, Sim
 
 FULL = mujoco.mjtState.mjSTATE_FULLPHYSICS
 
@@ -43,11 +43,10 @@ class CpuSim(Sim):
         self._ctrl = np.zeros((num_envs, model.nu))
         self._out: np.ndarray | None = None
 
-        state = torch.from_numpy(self._state)
-        self._state_t = state
-        self._default_t = torch.from_numpy(self._default)
-        self.qpos = state[:, _state_slice(model, mujoco.mjtState.mjSTATE_QPOS)]
-        self.qvel = state[:, _state_slice(model, mujoco.mjtState.mjSTATE_QVEL)]
+        qpos = self._state[:, _state_slice(model, mujoco.mjtState.mjSTATE_QPOS)]
+        self._qvel = self._state[:, _state_slice(model, mujoco.mjtState.mjSTATE_QVEL)]
+        self.qpos = torch.from_numpy(qpos)
+        self.qvel = torch.from_numpy(self._qvel)
         self.ctrl = torch.from_numpy(self._ctrl)
 
     def step(self, nstep: int) -> None:
@@ -63,8 +62,13 @@ class CpuSim(Sim):
                              skip_checks=True)
         self._state[:] = self._out[:, -1]
 
+    # The two below work on the numpy arrays under the torch views: on arrays this small a
+    # numpy call costs a fraction of a torch op's dispatch, and they run every env step.
     def reset_to_defaults(self, mask: torch.Tensor) -> None:
-        self._state_t.copy_(torch.where(mask[:, None], self._default_t, self._state_t))
+        self._state[mask.numpy()] = self._default
+
+    def unstable(self) -> torch.Tensor:
+        return torch.from_numpy(~(np.abs(self._qvel) < UNSTABLE_VELOCITY).all(axis=1))
 
     def close(self) -> None:
         if self._runner is not None:
