@@ -1,4 +1,4 @@
-"""The batched environment: a gymnasium VectorEnv whose arrays are torch tensors `[num_envs, ...]`."""
+"""The batched environment: a gymnasium VectorEnv of torch tensors `[num_envs, ...]`."""
 
 from __future__ import annotations
 
@@ -35,13 +35,17 @@ class LabVecEnv(gym.vector.VectorEnv):
         model = mujoco.MjModel.from_xml_path(str(spec.model))
         if cfg.sim_dt is not None:
             model.opt.timestep = cfg.sim_dt
+        # MuJoCo's own reset of a diverged state would hide it from `Sim.unstable()`: lab resets
+        # such envs itself, and counts them.
+        model.opt.disableflags |= mujoco.mjtDisableBit.mjDSBL_AUTORESET
         self.backend = backend or default_backend(device)
         self.sim = make_sim(self.backend, model, cfg.num_envs, device, nthread)
         self.task = spec.task(cfg, self.sim)
         self.num_envs = cfg.num_envs
         self.device = self.sim.device
         self.step_dt = model.opt.timestep * cfg.decimation
-        self.max_episode_length = math.ceil(cfg.episode_length_s / self.step_dt)
+        # Rounded first: 0.14 / 0.02 is 7.000000000000001, which must be 7 steps, not 8.
+        self.max_episode_length = math.ceil(round(cfg.episode_length_s / self.step_dt, 9))
 
         self.observation_names = list(self.task.observation_names)
         self.action_names = list(self.task.action_names)
@@ -81,8 +85,12 @@ class LabVecEnv(gym.vector.VectorEnv):
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         if seed is not None:
             self.generator.manual_seed(seed)
-        self._reset_envs(self._all)
-        self._stats.zero_()
+        mask = (options or {}).get("reset_mask")
+        if mask is None:
+            self._reset_envs(self._all)
+            self._stats.zero_()
+        else:  # gymnasium's way to reset some envs only
+            self._reset_envs(torch.as_tensor(mask, dtype=torch.bool, device=self.device))
         return self._observations(), {}
 
     def step(self, actions: torch.Tensor):

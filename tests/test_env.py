@@ -230,8 +230,7 @@ def test_a_termination_on_the_time_out_step_is_a_termination(make_env):
 @pytest.mark.parametrize(("episode_length_s", "steps"), [
     (0.1, 5),
     (0.3, 15),
-    pytest.param(0.14, 7, marks=pytest.mark.xfail(strict=True, reason=(
-        "env.py: ceil(0.14 / 0.02) is ceil(7.000000000000001) = 8, one step too many"))),
+    (0.14, 7),  # 0.14 / 0.02 is 7.000000000000001 in floating point
 ])
 def test_time_out_after_episode_length_over_step_dt(make_env, episode_length_s, steps):
     env = make_env(num_envs=2, episode_length_s=episode_length_s, **AT_REST)
@@ -374,9 +373,6 @@ def test_task_and_sim_reset_touch_only_the_masked_envs(make_env):
     assert (env.sim.qpos[mask] != qpos[mask]).all() and (env.sim.qpos[mask] != 0).all()
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "env.py LabVecEnv.reset ignores options['reset_mask'] (gymnasium's way to reset some envs) "
-    "and resets all"))
 def test_reset_mask_option_resets_only_those_envs(make_env):
     env = make_env(seed=12)
     env.reset()
@@ -439,9 +435,6 @@ def test_a_runaway_velocity_counts_as_unstable(make_env):
     assert_only_env_0_unstable(env, obs, reward, terminated, info)
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "sim/cpu.py: MuJoCo's auto-reset (mjDSBL_AUTORESET is not set) puts a diverged env back at "
-    "qpos0 inside mj_step, so Sim.unstable() never sees it: not terminated, not counted"))
 @pytest.mark.parametrize("pole_vel", [float("nan"), 1e7])
 def test_a_state_mujoco_rejects_counts_as_unstable(make_env, pole_vel):
     env = make_env(seed=16)
