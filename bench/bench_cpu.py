@@ -41,6 +41,7 @@ from rich.console import Console
 from rich.table import Table
 
 from labcli import metrics, plugins
+from labcli.bench import env_rate, rate
 from labcli.env import LabVecEnv
 
 REPO = Path(__file__).resolve().parents[1]
@@ -59,34 +60,15 @@ console = Console(width=None if sys.stdout.isatty() else 150)
 
 
 # Timing ---------------------------------------------------------------------------------------
-def rate(step: Callable[[], int], seconds: float) -> float:
-    """Env-steps/s of `step` (which returns the env-steps it took), after a warm-up."""
-    for _ in range(3):
-        step()
-    count, start = 0, time.perf_counter()
-    while time.perf_counter() - start < seconds:
-        count += step()
-    return count / (time.perf_counter() - start)
-
-
 def make_env(num_envs: int) -> LabVecEnv:
     spec = plugins.get_task(TASK)
     return LabVecEnv(spec, spec.config(num_envs=num_envs), backend="cpu", seed=0)
 
 
 def lab_rate(num_envs: int, seconds: float) -> float:
-    """The env as a learner sees it: uniform random actions in, torch tensors out."""
     env = make_env(num_envs)
-    env.reset(seed=0)
-    gen = torch.Generator().manual_seed(0)
-    shape = (num_envs, env.single_action_space.shape[0])
-
-    def step() -> int:
-        env.step(torch.rand(shape, generator=gen) * 2 - 1)
-        return num_envs
-
     try:
-        return rate(step, seconds)
+        return env_rate(env, seconds)
     finally:
         env.close()
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import functools
+import json
 import signal
 from collections.abc import Callable
 from pathlib import Path
@@ -12,7 +13,7 @@ import typer
 from rich.console import Console
 from rich.table import Table, box
 
-from labcli import __version__, export, play, plugins, training
+from labcli import __version__, bench, export, play, plugins, training
 from labcli.errors import LabError
 
 app = typer.Typer(
@@ -174,6 +175,45 @@ def export_command(
     out.print(f"wrote {result.path} and {result.metadata.name}; max abs difference from torch "
               f"{result.max_abs_diff:.2e} over {result.checked} observations", highlight=False,
               soft_wrap=True)
+
+
+@command("bench")
+def bench_command(
+    task: Annotated[str, typer.Option("--task", "-t", help="Task to measure, see `lab list`.")],
+    num_envs: Annotated[str, typer.Option(help="Comma-separated env counts.")] = "16,256,1024",
+    backend: Annotated[str | None, typer.Option(
+        help="Simulation backend: cpu or warp [warp where CUDA is available].")] = None,
+    device: Annotated[str, typer.Option(help="Torch device of the env.")] = "cpu",
+    framework: Annotated[str | None, typer.Option(
+        "--framework", "-f", help="Also time a short training run with this framework.")] = None,
+    seconds: Annotated[float, typer.Option(help="Seconds per measurement.")] = 3.0,
+    as_json: Annotated[bool, typer.Option("--json", help="Print JSON instead of a table.")] = False,
+) -> None:
+    """Measure env-steps/s of a task (random actions, resets included) and, with --framework,
+    training steps/s.
+
+    Example: lab bench --task cartpole --num-envs 16,256,1024 --framework rsl_rl
+    """
+    try:
+        counts = [int(n) for n in num_envs.split(",")]
+    except ValueError:
+        raise LabError(f"--num-envs '{num_envs}' is not a list of integers",
+                       "e.g. --num-envs 16,256,1024") from None
+    rows = bench.bench(task, counts, backend=backend, device=device, framework=framework,
+                       seconds=seconds)
+    if as_json:
+        out.print_json(json.dumps([row.as_dict() for row in rows]))
+        return
+    columns = ["task", "backend", "envs", "env-steps/s"]
+    if framework:
+        columns += ["framework", "training steps/s"]
+    table = _table(*columns, title="lab bench")
+    for row in rows:
+        cells = [row.task, row.backend, str(row.num_envs), f"{row.env_steps_per_s:,.0f}"]
+        if framework:
+            cells += [row.framework, f"{row.train_steps_per_s:,.0f}"]
+        table.add_row(*cells)
+    out.print(table)
 
 
 def main() -> None:

@@ -137,3 +137,21 @@ def test_the_installed_console_script_runs():
     result = subprocess.run([sys.executable, "-m", "labcli", "--version"], capture_output=True,
                             text=True, check=True)
     assert result.stdout.strip() == f"lab {__version__}"
+
+
+def test_bench_prints_env_and_training_rates_as_json(tmp_path):
+    result = lab("bench", "--task", "cartpole", "--num-envs", "4,8", "--seconds", "0.2",
+                 "--framework", "skrl", "--json", logs=tmp_path / "logs")
+    assert result.exit_code == 0, result.output
+    rows = json.loads(result.stdout)
+    assert [row["num_envs"] for row in rows] == [4, 8]
+    for row in rows:
+        assert row["backend"] == "cpu" and row["env_steps_per_s"] > 0
+        assert row["framework"] == "skrl" and row["train_steps_per_s"] > 0
+    assert not (tmp_path / "logs").exists()  # the training runs are thrown away
+
+
+@pytest.mark.parametrize("counts", ["0", "4,x", ""])
+def test_bench_rejects_bad_env_counts(tmp_path, counts):
+    result = lab("bench", "--task", "cartpole", "--num-envs", counts, logs=tmp_path)
+    assert result.exit_code == 2 and result.stderr.startswith("error: --num-envs")

@@ -1,0 +1,94 @@
+"""`lab bench` as a library call: env-steps/s of any registered task, and training steps/s."""
+
+from __future__ import annotations
+
+import io
+import tempfile
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import torch
+from rich.console import Console
+
+from labcli import plugins, training
+from labcli.env import LabVecEnv
+from labcli.errors import LabError
+
+TRAIN_ITERATIONS = 5
+
+
+@dataclass
+class BenchRow:
+    task: str
+    backend: str
+    num_envs: int
+    env_steps_per_s: float
+    framework: str | None = None
+    train_steps_per_s: float | None = None
+
+    def as_dict(self) -> dict:
+        return asdict(self)
+
+
+def rate(step: Callable[[], int], seconds: float, sync: Callable[[], None] = lambda: None) -> float:
+    """Env-steps/s of `step` (which returns the env-steps it took), after a warm-up. `sync`
+    waits for queued device work, so that a GPU is timed on what it did, not what it was given."""
+    for _ in range(3):
+        step()
+    sync()
+    count, start = 0, time.perf_counter()
+    while time.perf_counter() - start < seconds:
+        count += step()
+    sync()
+    return count / (time.perf_counter() - start)
+
+
+def env_rate(env: LabVecEnv, seconds: float) -> float:
+    """The env as a learner sees it: uniform random actions in, torch tensors out."""
+    env.reset(seed=0)
+    gen = torch.Generator(env.device).manual_seed(0)
+    shape = (env.num_envs, env.single_action_space.shape[0])
+
+    def step() -> int:
+        env.step(torch.rand(shape, generator=gen, device=env.device) * 2 - 1)
+        return env.num_envs
+
+    sync = torch.cuda.synchronize if env.device.type == "cuda" else (lambda: None)
+    return rate(step, seconds, sync)
+
+
+def train_rate(task: str, framework: str, num_envs: int, backend: str | None,
+               device: str) -> float:
+    """Steps/s of a short training run (collection and updates) in a throwaway logs dir."""
+    with tempfile.TemporaryDirectory(prefix="lab_bench_") as logs:
+        outcome = training.train(task, framework, num_envs=num_envs, device=device,
+                                 backend=backend, max_iterations=TRAIN_ITERATIONS,
+                                 logs_dir=Path(logs), console=Console(file=io.StringIO()),
+                                 command=["lab", "bench"])
+    return outcome.summary["steps"] / max(outcome.summary["wall_time_s"], 1e-9)
+
+
+def bench(task: str, num_envs: Sequence[int], *, backend: str | None = None,
+          device: str = "cpu", framework: str | None = None,
+          seconds: float = 3.0) -> list[BenchRow]:
+    spec = plugins.get_task(task)
+    if framework is not None:
+        plugins.get_framework(framework)  # an unknown name fails before any measuring
+    device = training.check_device(device)
+    if not num_envs or any(n <= 0 for n in num_envs):
+        raise LabError(f"--num-envs must be positive integers, got {list(num_envs)}",
+                       "e.g. --num-envs 16,256,1024")
+    rows = []
+    for n in num_envs:
+        env = LabVecEnv(spec, spec.config(num_envs=n), backend=backend, device=device)
+        try:
+            row = BenchRow(task, env.backend, n, env_rate(env, seconds))
+        finally:
+            env.close()
+        if framework is not None:
+            row.framework = framework
+            row.train_steps_per_s = train_rate(task, framework, n, backend, device)
+        rows.append(row)
+    return rows
