@@ -50,14 +50,16 @@ def _array(x: Any) -> np.ndarray:
     return torch.as_tensor(x).detach().cpu().numpy() if not isinstance(x, np.ndarray) else x
 
 
-def _train(name: str, logs_dir: Path, iterations: int, overrides: Sequence[str],
-           num_envs: int = NUM_ENVS, **kwargs: Any) -> training.TrainOutcome:
+def train_small(name: str, logs_dir: Path, iterations: int, overrides: Sequence[str],
+                num_envs: int = NUM_ENVS, **kwargs: Any) -> training.TrainOutcome:
+    """A quiet training run of cartpole with framework `name`, for tests."""
     return training.train(TASK, name, num_envs=num_envs, max_iterations=iterations,
                           overrides=list(overrides), logs_dir=logs_dir, seed=kwargs.pop("seed", 0),
                           console=Console(file=io.StringIO()), command=["lab", "test"], **kwargs)
 
 
-def _env(num_envs: int = NUM_ENVS, **cfg: Any) -> LabVecEnv:
+def make_env(num_envs: int = NUM_ENVS, **cfg: Any) -> LabVecEnv:
+    """A cartpole env on the cpu backend with `cfg` over the task's defaults, for tests."""
     spec = plugins.get_task(TASK)
     return LabVecEnv(spec, spec.config(num_envs=num_envs, **cfg))
 
@@ -92,7 +94,7 @@ def check_adapter(name: str, probe: Probe | None = None) -> None:
     assert any(step.spec is adapters[0] for step in pipeline), (
         f"{name}: the default pipeline does not use the adapter {adapters[0].name}")
     if probe is None:
-        env = _env()
+        env = make_env()
         try:
             wrappers.apply(env, pipeline, name)
         finally:
@@ -102,7 +104,7 @@ def check_adapter(name: str, probe: Probe | None = None) -> None:
         ("time-out", {"episode_length_s": 0.1}, 5, False),
         ("termination", {"cart_bound": 0.1, "reset_cart_pos": (0.5, 0.5)}, 1, True),
     ):
-        env = _env(**env_cfg)
+        env = make_env(**env_cfg)
         try:
             env.reset(seed=0)  # Gymnasium's contract: reset before the first step
             wrapped = wrappers.apply(env, pipeline, name)
@@ -133,7 +135,7 @@ def check_training_outputs(name: str, tmp_path: Path, overrides: Sequence[str] =
     """A few iterations write checkpoints named by `checkpoint_path` at the save interval and at
     the end, a consistent summary.json and manifest, and the common TensorBoard tags."""
     fw = plugins.get_framework(name)
-    outcome = _train(name, tmp_path, iterations,
+    outcome = train_small(name, tmp_path, iterations,
                      [*overrides, SHORT_EPISODE, "agent.save_interval=2"])
     run_dir = outcome.run.dir
     expected = [fw.checkpoint_path(run_dir, i) for i in (2, iterations)]
@@ -154,7 +156,7 @@ def check_training_outputs(name: str, tmp_path: Path, overrides: Sequence[str] =
     assert summary["mean_return"] is not None, f"{name}: no episode stats reached the summary"
     assert json.loads((run_dir / runs.MANIFEST).read_text())["state"] == "finished"
     scalars = _scalars(run_dir)
-    env = _env(1)
+    env = make_env(1)
     try:
         tags = [metrics.EPISODES, metrics.MEAN_RETURN, metrics.MEAN_LENGTH, metrics.SUCCESS_RATE,
                 metrics.STEPS_PER_S, metrics.INSTABILITIES,
@@ -174,7 +176,7 @@ def check_training_outputs(name: str, tmp_path: Path, overrides: Sequence[str] =
 
 def _observations(n: int = 64) -> torch.Tensor:
     """Real cartpole observations from random actions, plus wide random ones."""
-    env = _env(8)
+    env = make_env(8)
     try:
         obs, _ = env.reset(seed=0)
         out = [obs]
@@ -193,12 +195,12 @@ def check_policy_roundtrip(name: str, tmp_path: Path, overrides: Sequence[str] =
     """The last checkpoint loads as a Policy that gives the same deterministic actions every
     time it is loaded and called, in [-1, 1]; with `normalized`, the normalizer is inside."""
     fw = plugins.get_framework(name)
-    outcome = _train(name, tmp_path, 2, [*overrides, SHORT_EPISODE])
+    outcome = train_small(name, tmp_path, 2, [*overrides, SHORT_EPISODE])
     checkpoint = fw.checkpoints(outcome.run.dir)[-1].path
     obs = _observations()
     actions = []
     for num_envs in (NUM_ENVS, 16):  # the policy must not depend on the env's batch size
-        env = _env(num_envs)
+        env = make_env(num_envs)
         try:
             policy = fw.load_policy(checkpoint, env)
         finally:
@@ -229,9 +231,9 @@ def check_resume(name: str, tmp_path: Path, overrides: Sequence[str] = ()) -> No
     """`checkpoint="latest"` continues the same run: iterations and steps go on from the
     checkpoint, and the new checkpoints land in the same run dir."""
     fw = plugins.get_framework(name)
-    first = _train(name, tmp_path, 2, [*overrides, SHORT_EPISODE])
+    first = train_small(name, tmp_path, 2, [*overrides, SHORT_EPISODE])
     per_iteration = first.summary["steps"] // 2
-    second = _train(name, tmp_path, 4, [*overrides, SHORT_EPISODE],
+    second = train_small(name, tmp_path, 4, [*overrides, SHORT_EPISODE],
                     checkpoint=training.LATEST)
     assert second.run.dir == first.run.dir, f"{name}: resume made a new run dir"
     assert second.summary["iterations"] == 4, (
@@ -250,12 +252,12 @@ def check_export(name: str, tmp_path: Path, overrides: Sequence[str] = ()) -> fl
     from labcli.export import Format, export
 
     fw = plugins.get_framework(name)
-    outcome = _train(name, tmp_path, 1, [*overrides, SHORT_EPISODE])
+    outcome = train_small(name, tmp_path, 1, [*overrides, SHORT_EPISODE])
     result = export(Format.onnx, run_dir=outcome.run.dir)
     assert result.path.is_file(), f"{name}: no {result.path}"
     import onnxruntime as ort
 
-    env = _env()
+    env = make_env()
     try:
         policy = fw.load_policy(fw.checkpoints(outcome.run.dir)[-1].path, env)
     finally:
@@ -278,7 +280,7 @@ def check_training_improves(name: str, tmp_path: Path, overrides: Sequence[str] 
     the tiny ones: a 16-unit agent learns little in 25 iterations) must raise the mean episode
     return: the mean of the last three logged values must exceed `factor` x the first.
     Returns (first, last). Measured on 2 cores: 3-11 s per built-in framework, 4x or more."""
-    outcome = _train(name, tmp_path, iterations, overrides, num_envs=num_envs, seed=seed)
+    outcome = train_small(name, tmp_path, iterations, overrides, num_envs=num_envs, seed=seed)
     returns = [v for _, v in sorted(_scalars(outcome.run.dir)[metrics.MEAN_RETURN])]
     assert len(returns) >= 4, f"{name}: only {len(returns)} mean returns logged"
     first, last = returns[0], float(np.mean(returns[-3:]))

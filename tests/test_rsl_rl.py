@@ -19,7 +19,7 @@ from rich.console import Console
 from rsl_rl.models import MLPModel
 from tensordict import TensorDict
 
-from labcli import plugins, runs, training
+from labcli import plugins, runs, testing, training
 from labcli.env import LabVecEnv
 from labcli.errors import LabError
 from labcli.framework import ObsNormalizer
@@ -33,15 +33,11 @@ SMALL = [f"agent.num_steps_per_env={STEPS}", f"agent.num_learning_epochs={EPOCHS
          "agent.critic_hidden_dims=[16,16]"]
 
 
-def make_env(num_envs: int = NUM_ENVS, **overrides) -> LabVecEnv:
-    spec = plugins.get_task("cartpole")
-    return LabVecEnv(spec, spec.config(num_envs=num_envs, **overrides))
+make_env = testing.make_env
 
 
 def train(tmp_path: Path, iterations: int, sets: list[str] = (), **kwargs) -> training.TrainOutcome:
-    return training.train("cartpole", "rsl_rl", num_envs=NUM_ENVS, max_iterations=iterations,
-                          overrides=[*SMALL, *sets], logs_dir=tmp_path,
-                          console=Console(file=io.StringIO()), **kwargs)
+    return testing.train_small("rsl_rl", tmp_path, iterations, [*SMALL, *sets], **kwargs)
 
 
 @pytest.fixture(scope="module")

@@ -16,7 +16,7 @@ from lab_sb3.framework import Sb3Framework
 from rich.console import Console
 from stable_baselines3 import PPO
 
-from labcli import plugins, runs, training
+from labcli import runs, testing, training
 from labcli.env import LabVecEnv
 from labcli.errors import LabError
 from labcli.framework import ObsNormalizer
@@ -28,15 +28,11 @@ SMALL = [f"agent.n_steps={N_STEPS}", "agent.batch_size=16", "agent.n_epochs=2",
          "agent.net_arch=[16,16]"]
 
 
-def make_env(num_envs: int = NUM_ENVS, **overrides) -> LabVecEnv:
-    spec = plugins.get_task("cartpole")
-    return LabVecEnv(spec, spec.config(num_envs=num_envs, **overrides))
+make_env = testing.make_env
 
 
 def train(tmp_path: Path, iterations: int, sets: list[str] = (), **kwargs) -> training.TrainOutcome:
-    return training.train("cartpole", "sb3", num_envs=NUM_ENVS, max_iterations=iterations,
-                          overrides=[*SMALL, *sets], logs_dir=tmp_path,
-                          console=Console(file=io.StringIO()), **kwargs)
+    return testing.train_small("sb3", tmp_path, iterations, [*SMALL, *sets], **kwargs)
 
 
 @pytest.fixture(scope="module")

@@ -18,7 +18,7 @@ from lab_skrl.framework import META, SkrlFramework, SkrlPPOConfig, _collect_and_
 from rich.console import Console
 from skrl.resources.preprocessors.torch import RunningStandardScaler
 
-from labcli import plugins, runs, training
+from labcli import plugins, runs, testing, training
 from labcli.env import LabVecEnv
 from labcli.errors import LabError
 from labcli.framework import ObsNormalizer
@@ -30,15 +30,11 @@ SMALL = [f"agent.rollouts={ROLLOUTS}", "agent.learning_epochs=2", "agent.mini_ba
          "agent.hidden_sizes=[16,16]"]
 
 
-def make_env(num_envs: int = NUM_ENVS, **overrides) -> LabVecEnv:
-    spec = plugins.get_task("cartpole")
-    return LabVecEnv(spec, spec.config(num_envs=num_envs, **overrides))
+make_env = testing.make_env
 
 
 def train(tmp_path: Path, iterations: int, sets: list[str] = (), **kwargs) -> training.TrainOutcome:
-    return training.train("cartpole", "skrl", num_envs=NUM_ENVS, max_iterations=iterations,
-                          overrides=[*SMALL, *sets], logs_dir=tmp_path,
-                          console=Console(file=io.StringIO()), **kwargs)
+    return testing.train_small("skrl", tmp_path, iterations, [*SMALL, *sets], **kwargs)
 
 
 @pytest.fixture(scope="module")
