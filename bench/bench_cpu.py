@@ -2,6 +2,7 @@
 
   python bench/bench_cpu.py [--envs 16,256,1024] [--seconds 3] [--repeats 3] [--peers DIR]
                             [--frameworks sb3,rsl_rl,skrl] [--skip-train] [--json FILE]
+  python bench/bench_cpu.py --profile 256     (only: lab's env step by part, in microseconds)
 
 a) env-steps/s of lab's cartpole (`LabVecEnv`, cpu backend, random actions, autoreset, torch
    tensors out) beside ../shared/peers/bench_step.py (run as a subprocess: raw `mujoco.rollout`,
@@ -218,6 +219,54 @@ def train_peer(script: Path) -> dict:
             "solved_steps": int(match[2].replace(",", "")) if match else None}
 
 
+# Profile --------------------------------------------------------------------------------------
+TASK_PARTS = ("apply_actions", "observations", "reward_terms", "terminations", "reset", "success")
+
+
+def profile(num_envs: int, steps: int = 300) -> dict[str, float]:
+    """Per-step microseconds of `sim.step` (the rollout), of the task's methods and of the rest
+    (the env's own code), with each method wrapped by a timer; median over blocks of steps."""
+    env = make_env(num_envs)
+    env.reset(seed=0)
+    totals: dict[str, float] = defaultdict(float)
+
+    def timed(owner: object, name: str, part: str) -> None:
+        fn = getattr(owner, name)
+
+        def call(*args, **kwargs):
+            start = time.perf_counter()
+            out = fn(*args, **kwargs)
+            totals[part] += time.perf_counter() - start
+            return out
+
+        setattr(owner, name, call)
+
+    timed(env.sim, "step", "sim.step (rollout)")
+    for name in TASK_PARTS:
+        timed(env.task, name, "task")
+    blocks, per_block = [], max(1, steps // 10)
+    for _ in range(12):
+        totals.clear()
+        start = time.perf_counter()
+        for _ in range(per_block):
+            env.step(torch.rand(num_envs, env.single_action_space.shape[0]) * 2 - 1)
+        step = time.perf_counter() - start
+        parts = {"sim.step (rollout)": totals["sim.step (rollout)"], "task": totals["task"],
+                 "env (the rest)": step - sum(totals.values()), "whole step": step}
+        blocks.append({k: v / per_block * 1e6 for k, v in parts.items()})
+    env.close()
+    return {k: statistics.median(b[k] for b in blocks[2:]) for k in blocks[0]}
+
+
+def profile_table(num_envs: int, parts: dict[str, float]) -> None:
+    table = Table(title=f"lab's env step at {num_envs} envs")
+    table.add_column("part")
+    table.add_column("us per step", justify="right")
+    for name, us in parts.items():
+        table.add_row(name, f"{us:,.0f}")
+    console.print(table)
+
+
 # Report ---------------------------------------------------------------------------------------
 def header() -> dict:
     cpu = platform.processor() or platform.machine()
@@ -308,7 +357,12 @@ def main() -> None:
     p.add_argument("--frameworks", default="sb3,rsl_rl,skrl")
     p.add_argument("--skip-train", action="store_true")
     p.add_argument("--json", type=Path, help="also write the figures here")
+    p.add_argument("--profile", type=int, metavar="N",
+                   help="only break lab's env step down by part at N envs")
     a = p.parse_args()
+    if a.profile:
+        profile_table(a.profile, profile(a.profile))
+        return
     envs = [int(x) for x in a.envs.split(",") if x]
     results: dict = {"command": " ".join(sys.argv), "machine": header()}
 
