@@ -5,6 +5,7 @@ from __future__ import annotations
 import io
 import json
 import os
+import pickle
 import signal
 from pathlib import Path
 
@@ -15,6 +16,7 @@ from lab_sb3.adapter import Sb3VecEnv
 from lab_sb3.framework import Sb3Framework
 from rich.console import Console
 from stable_baselines3 import PPO
+from stable_baselines3.common.vec_env import VecNormalize
 
 from labcli import runs, testing, training
 from labcli.env import LabVecEnv
@@ -86,8 +88,6 @@ def test_policy_includes_the_saved_normalizer(trained):
     assert isinstance(policy.normalizer, ObsNormalizer)
     model = PPO.load(checkpoint, device="cpu")
     vecnorm = Sb3Framework.normalizer_path(checkpoint)
-    from stable_baselines3.common.vec_env import VecNormalize
-
     norm = VecNormalize.load(str(vecnorm), Sb3VecEnv(make_env()))
     obs = np.random.default_rng(0).normal(size=(64, 4)).astype(np.float32) * [1, 1, 3, 10]
     expected, _ = model.predict(norm.normalize_obs(obs), deterministic=True)
@@ -109,8 +109,6 @@ def test_resume_continues_iterations_steps_and_normalizer(tmp_path):
     assert second.run.dir == first.run.dir
     assert second.summary["iterations"] == 4 and second.summary["steps"] == 4 * PER_ITERATION
     assert PPO.load(first.run.dir / "model_4.zip").num_timesteps == 4 * PER_ITERATION
-    import pickle
-
     counts = [pickle.loads((first.run.dir / f"vecnormalize_{i}.pkl").read_bytes()).obs_rms.count
               for i in (2, 4)]
     assert counts[1] > counts[0] + PER_ITERATION  # the resumed normalizer kept its statistics
