@@ -41,8 +41,8 @@ from mujoco import rollout
 from rich.console import Console
 from rich.table import Table
 
-from labcli import metrics, plugins
-from labcli.bench import env_rate, rate
+from labcli import plugins
+from labcli.bench import env_rate, rate, time_to_success
 from labcli.env import LabVecEnv
 
 REPO = Path(__file__).resolve().parents[1]
@@ -177,22 +177,6 @@ def adapter_rates(seconds: float, repeats: int) -> dict[str, float]:
 
 
 # Training -------------------------------------------------------------------------------------
-def first_success(run_dir: Path) -> tuple[float, int] | None:
-    """Seconds (event wall time minus the run's first event) and steps at which the success
-    rate first reached SUCCESS, from the run's TensorBoard events."""
-    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
-
-    events = EventAccumulator(str(run_dir), size_guidance={"scalars": 0})
-    events.Reload()
-    if metrics.SUCCESS_RATE not in events.Tags()["scalars"]:
-        return None
-    start = events.FirstEventTimestamp()
-    for scalar in events.Scalars(metrics.SUCCESS_RATE):
-        if scalar.value >= SUCCESS:
-            return scalar.wall_time - start, scalar.step
-    return None
-
-
 def train_lab(framework: str) -> dict:
     with tempfile.TemporaryDirectory(prefix="bench_cpu_") as logs:
         start = time.perf_counter()
@@ -202,7 +186,7 @@ def train_lab(framework: str) -> dict:
         wall = time.perf_counter() - start
         (run_dir,) = Path(logs, framework, TASK).iterdir()
         summary = json.loads((run_dir / "summary.json").read_text())
-        success = first_success(run_dir)
+        success = time_to_success(run_dir, SUCCESS)
     return {"wall_s": wall, "train_s": summary["wall_time_s"], "steps": summary["steps"],
             "success_rate": summary["success_rate"],
             "success_s": success[0] if success else None,

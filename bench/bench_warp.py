@@ -3,6 +3,8 @@
   python bench/bench_warp.py [--task cartpole] [--sizes 4096,16384,65536] [--out DIR]
   python bench/bench_warp.py --startup          (seconds to build the env and take a step)
   python bench/bench_warp.py --profile          (host time per env step, by part)
+  python bench/bench_warp.py --train rsl_rl [--train-envs 4096] [--out DIR]
+                                                (seconds for `lab train` to reach success 0.95)
 
 lab:  `LabVecEnv.step` with a policy's actions (torch MLP on the observations plus noise): task
       terms, terminations, statistics and masked resets included. Eager, and again with that
@@ -19,7 +21,12 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
+import shlex
 import statistics
+import subprocess
+import tarfile
+import tempfile
 import time
 import warnings
 from collections import defaultdict
@@ -29,7 +36,10 @@ from pathlib import Path
 import torch
 
 from labcli import metrics, plugins
+from labcli.bench import time_to_success
 from labcli.env import LabVecEnv
+
+SUCCESS = 0.95
 
 
 def steps_for(num_envs: int) -> int:
@@ -239,6 +249,32 @@ def host_profile(task: str, num_envs: int, steps: int = 200) -> None:
     env.close()
 
 
+def train(task: str, framework: str, num_envs: int, out: Path | None) -> None:
+    """`lab train --backend warp` as a user runs it, in a throwaway logs dir: process wall time
+    (kernels load from the cache: run the bench once before), and the training seconds and
+    steps until the logged success rate first reached SUCCESS. With `out`, the run dir is
+    packed there as run.tgz, to play it on another machine."""
+    with tempfile.TemporaryDirectory(prefix="bench_warp_") as logs:
+        cmd = ["lab", "train", "--task", task, "--framework", framework, "--backend", "warp",
+               "--num-envs", str(num_envs)]
+        start = time.perf_counter()
+        done = subprocess.run(cmd, env={**os.environ, "LAB_LOGS_DIR": logs}, capture_output=True,
+                              text=True)
+        wall = time.perf_counter() - start
+        print(done.stdout.strip(), done.stderr.strip()[-2000:] if done.returncode else "")
+        (run_dir,) = Path(logs, framework, task).iterdir()
+        summary = json.loads((run_dir / "summary.json").read_text())
+        success = time_to_success(run_dir, SUCCESS)
+        reached = (f"success >= {SUCCESS} after {success[0]:.1f} s of training, {success[1]:,} "
+                   "steps" if success else f"success never reached {SUCCESS}")
+        print(f"{shlex.join(cmd)}: {wall:.1f} s in all, {summary['wall_time_s']:.1f} s training,"
+              f" {summary['steps']:,} steps, final success {summary['success_rate']}; {reached}")
+        if out:
+            out.mkdir(parents=True, exist_ok=True)
+            with tarfile.open(out / f"run_{framework}.tgz", "w:gz") as tar:
+                tar.add(run_dir, arcname=run_dir.name)
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--task", default="cartpole")
@@ -246,8 +282,13 @@ def main() -> None:
     p.add_argument("--startup", action="store_true", help="only time building the env")
     p.add_argument("--profile", action="store_true",
                    help="only break lab's host time per step down by part, at 1024 envs")
-    p.add_argument("--out", type=Path, help="write results.json here")
+    p.add_argument("--train", metavar="FRAMEWORK", help="only time `lab train` to success")
+    p.add_argument("--train-envs", type=int, default=4096)
+    p.add_argument("--out", type=Path, help="write results.json (or the trained run) here")
     a = p.parse_args()
+    if a.train:
+        train(a.task, a.train, a.train_envs, a.out)
+        return
     if a.startup:
         startup(a.task, 4096)
         return

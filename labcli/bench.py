@@ -12,7 +12,7 @@ from pathlib import Path
 import torch
 from rich.console import Console
 
-from labcli import plugins, training
+from labcli import metrics, plugins, training
 from labcli.env import LabVecEnv
 from labcli.errors import LabError
 
@@ -70,13 +70,29 @@ def train_rate(task: str, framework: str, num_envs: int, backend: str | None,
     return outcome.summary["steps"] / max(outcome.summary["wall_time_s"], 1e-9)
 
 
+def time_to_success(run_dir: Path, threshold: float) -> tuple[float, int] | None:
+    """Seconds of training (event wall time since the run's first event, which is written once
+    the env is built) and steps at which the logged success rate first reached `threshold`."""
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    events = EventAccumulator(str(run_dir), size_guidance={"scalars": 0})
+    events.Reload()
+    if metrics.SUCCESS_RATE not in events.Tags()["scalars"]:
+        return None
+    start = events.FirstEventTimestamp()
+    for scalar in events.Scalars(metrics.SUCCESS_RATE):
+        if scalar.value >= threshold:
+            return scalar.wall_time - start, scalar.step
+    return None
+
+
 def bench(task: str, num_envs: Sequence[int], *, backend: str | None = None,
-          device: str = "cpu", framework: str | None = None,
+          device: str | None = None, framework: str | None = None,
           seconds: float = 3.0) -> list[BenchRow]:
     spec = plugins.get_task(task)
     if framework is not None:
         plugins.get_framework(framework)  # an unknown name fails before any measuring
-    device = training.check_device(device)
+    device = training.check_device(device, backend)
     if not num_envs or any(n <= 0 for n in num_envs):
         raise LabError(f"--num-envs must be positive integers, got {list(num_envs)}",
                        "e.g. --num-envs 16,256,1024")

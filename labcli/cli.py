@@ -96,7 +96,8 @@ def train(
     seed: Annotated[int, typer.Option(help="Seeds the env, torch and the framework.")] = 0,
     max_iterations: Annotated[int | None, typer.Option(
         help="Rollout + update cycles [framework default].")] = None,
-    device: Annotated[str, typer.Option(help="Torch device for the learner.")] = "cpu",
+    device: Annotated[str | None, typer.Option(
+        help="Torch device of the env and learner [cuda with the warp backend, else cpu].")] = None,
     backend: Annotated[str | None, typer.Option(
         help="Simulation backend: cpu, or warp (GPU) [warp where CUDA is available].")] = None,
     run_name: Annotated[str | None, typer.Option(help="Suffix of the run directory.")] = None,
@@ -183,7 +184,8 @@ def bench_command(
     num_envs: Annotated[str, typer.Option(help="Comma-separated env counts.")] = "16,256,1024",
     backend: Annotated[str | None, typer.Option(
         help="Simulation backend: cpu or warp [warp where CUDA is available].")] = None,
-    device: Annotated[str, typer.Option(help="Torch device of the env.")] = "cpu",
+    device: Annotated[str | None, typer.Option(
+        help="Torch device of the env [cuda with the warp backend, else cpu].")] = None,
     framework: Annotated[str | None, typer.Option(
         "--framework", "-f", help="Also time a short training run with this framework.")] = None,
     seconds: Annotated[float, typer.Option(help="Seconds per measurement.")] = 3.0,

@@ -35,9 +35,6 @@ class LabVecEnv(gym.vector.VectorEnv):
         model = mujoco.MjModel.from_xml_path(str(spec.model))
         if cfg.sim_dt is not None:
             model.opt.timestep = cfg.sim_dt
-        # MuJoCo's own reset of a diverged state would hide it from `Sim.unstable()`: lab resets
-        # such envs itself, and counts them.
-        model.opt.disableflags |= mujoco.mjtDisableBit.mjDSBL_AUTORESET
         self.backend = backend or default_backend(device)
         self.sim = make_sim(self.backend, model, cfg.num_envs, device, nthread)
         self.task = spec.task(cfg, self.sim)

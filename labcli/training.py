@@ -25,6 +25,7 @@ from labcli.env import LabVecEnv
 from labcli.errors import LabError
 from labcli.framework import AgentConfig, Checkpoint, Framework
 from labcli.progress import TrainProgress
+from labcli.sim import WARP_INSTALL_HINT, default_backend
 from labcli.task import TaskConfig, TaskSpec
 
 LATEST = "latest"
@@ -126,7 +127,15 @@ def resolve_configs(spec: TaskSpec, fw: Framework, *, base: tuple[dict, dict] | 
     return env_cfg, agent_cfg
 
 
-def check_device(device: str) -> str:
+def check_device(device: str | None, backend: str | None = None) -> str:
+    """The torch device of the env and the learner; None picks CUDA for the warp backend (asked
+    for, or the default where CUDA and MuJoCo Warp are usable), else the CPU."""
+    if backend == "warp" and not torch.cuda.is_available():
+        raise LabError("the warp backend needs CUDA, which torch cannot use here",
+                       WARP_INSTALL_HINT)
+    if device is None:
+        wants_gpu = backend == "warp" or (backend is None and default_backend() == "warp")
+        return "cuda" if wants_gpu else "cpu"
     try:
         dev = torch.device(device)
     except RuntimeError as exc:
@@ -204,7 +213,8 @@ def _stop_on_signals(ctx: TrainContext) -> Iterator[None]:
 
 
 def train(task: str, framework: str, *, num_envs: int | None = None, seed: int = 0,
-          max_iterations: int | None = None, device: str = "cpu", backend: str | None = None,
+          max_iterations: int | None = None, device: str | None = None,
+          backend: str | None = None,
           run_name: str | None = None, overrides: Sequence[str] = (),
           config_file: Path | None = None, checkpoint: str | None = None,
           logs_dir: Path | None = None, console: Console | None = None,
@@ -214,7 +224,7 @@ def train(task: str, framework: str, *, num_envs: int | None = None, seed: int =
     console = console or Console(stderr=True)
     spec = plugins.get_task(task)
     fw = plugins.get_framework(framework)
-    device = check_device(device)
+    device = check_device(device, backend)
     if num_envs is not None and num_envs <= 0:
         raise LabError(f"--num-envs must be a positive integer, got {num_envs}")
 

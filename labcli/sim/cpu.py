@@ -34,6 +34,9 @@ def _cores() -> int:
 
 class CpuSim(Sim):
     def __init__(self, model: mujoco.MjModel, num_envs: int, nthread: int | None = None):
+        # MuJoCo's own reset of a diverged state would hide it from `Sim.unstable()`: lab resets
+        # such envs itself, and counts them. (MuJoCo Warp has no such reset, nor the flag.)
+        model.opt.disableflags |= mujoco.mjtDisableBit.mjDSBL_AUTORESET
         self.model = model
         self.num_envs = num_envs
         self.device = torch.device("cpu")
