@@ -81,9 +81,10 @@ class GymTaskSpec:
 
     def make_env(self, cfg: GymConfig, *, backend: str | None = None, device: str = "cpu",
                  seed: int = 0) -> GymVecEnv:
-        if backend not in (None, BACKEND):
-            raise LabError(f"gymnasium tasks step in gymnasium, not on the '{backend}' backend",
-                           "leave --backend out for gym: tasks")
+        # gymnasium's MuJoCo envs step MuJoCo's C engine: "cpu" is what they are, "warp" not.
+        if backend not in (None, "cpu", BACKEND):
+            raise LabError(f"gymnasium tasks step in gymnasium on the CPU, not on the "
+                           f"'{backend}' backend", "leave --backend out for gym: tasks")
         return GymVecEnv(self, cfg, device=device, seed=seed)
 
 

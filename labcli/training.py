@@ -5,6 +5,7 @@ from __future__ import annotations
 import os
 import shlex
 import signal
+import socket
 import sys
 import threading
 import time
@@ -256,6 +257,7 @@ def train(task: str, framework: str, *, num_envs: int | None = None, seed: int =
             "task": task, "framework": framework, "seed": seed, "device": device,
             "backend": env.backend, "num_envs": env.num_envs,
             "started": datetime.now().isoformat(timespec="seconds"), "pid": os.getpid(),
+            "host": socket.gethostname(),
             "state": "running", "versions": _versions(plugins.registry().provider(
                 "framework", framework)),
         }
