@@ -15,7 +15,7 @@ def check_display() -> None:
     if not gl.has_display():
         raise LabError("--viewer needs a display, and none is set (no DISPLAY or "
                        "WAYLAND_DISPLAY)", "record a video with --video instead, or run where "
-                       "a display exists (a desktop session, ssh -X)")
+                       "a display exists: a desktop session or ssh -X")
 
 
 class Viewer(gym.vector.VectorWrapper):
