@@ -7,6 +7,7 @@ import json
 import signal
 from collections import Counter
 from collections.abc import Callable
+from importlib.metadata import version
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -118,6 +119,9 @@ def list_command() -> None:
         for name in reg.names(kind):
             item, provider = reg.items[kind][name]
             table.add_row(name, getattr(item, "description", ""), str(provider))
+        if kind == "task":
+            table.add_row(f"{gym_bridge.PREFIX}<id>", gym_bridge.DESCRIPTION,
+                          f"gymnasium {version('gymnasium')}")
         out.print(table)
     if reg.failures:
         table = _table("plugin", "package", "error", title="Plugins that failed to load")

@@ -23,6 +23,7 @@ from labcli.errors import LabError
 from labcli.rendering import render_error
 
 PREFIX = "gym:"
+DESCRIPTION = "any registered gymnasium env with a bounded Box action space"
 BACKEND = "gymnasium"
 TERMINATED = "terminated"
 RENDER_MODE = "rgb_array"
@@ -281,7 +282,9 @@ class GymVecEnv(gym.vector.VectorEnv):
                            "videos need --set env.vectorization=sync and an env with "
                            "render mode rgb_array")
         try:
-            return self._vec.envs[0].render()
+            # The env itself, not its wrappers: their order check would refuse a first image
+            # before the first reset, which training takes to check rendering before it starts.
+            return self._vec.envs[0].unwrapped.render()
         except Exception as exc:  # MuJoCo's GL errors are FatalError, others vary
             raise render_error(exc) from exc
 

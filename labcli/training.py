@@ -245,6 +245,8 @@ def train(task: str, framework: str, *, num_envs: int | None = None, seed: int =
         if resume is not None:
             fw.load_policy(resume.path, env)  # a corrupt or mismatched checkpoint fails here
         wrappers.validate(_pipeline(fw, agent_cfg, video, None), fw.name)
+        if video is not None:
+            env.render()  # no GL, or an env that cannot render, fails before a run dir exists
         if run is None:
             run = runs.create(logs_dir, framework, task, run_name)
             runs.write_atomic(run.dir / runs.ENV_PARAMS, config.to_yaml(env_cfg))

@@ -121,6 +121,8 @@ def test_sanity_agent_prints_returns_and_termination_causes(tmp_path):
     (["train", "--task", "gym:NoSuchEnv-v0", "--framework", "sb3"],
      ["unknown gymnasium env 'NoSuchEnv-v0'"]),
     (["train", "--task", "gym:CartPole-v1", "--framework", "sb3"], ["Discrete(2)"]),
+    (["train", "--task", "gym:InvertedPendulum-v5", "--framework", "sb3", "--num-envs", "2",
+      "--video", "--set", "env.vectorization=async"], ["cannot render images here"]),
     (["plot"], ["no runs found"]),
 ])
 def test_bad_input_is_one_line_exit_2_and_writes_nothing(tmp_path, args, phrases):
