@@ -132,7 +132,6 @@ class Show:
             check_display()  # before any env is built
 
 
-
 def _rollout_shown(env, act, episodes: int, seed: int, show: Show,
                    folder: Path) -> Episodes:
     recorder = None if show.video is None else VideoRecorder(env, folder, show.video.length,

@@ -25,10 +25,15 @@ class Viewer(gym.vector.VectorWrapper):
     def __init__(self, env: gym.vector.VectorEnv):
         check_display()
         super().__init__(env)
+        import mujoco
         import mujoco.viewer
 
         model, data = env.unwrapped.mj_scene()
         self._handle = mujoco.viewer.launch_passive(model, data)
+        if model.ncam:  # the view the videos show; the mouse still moves a free camera
+            with self._handle.lock():
+                self._handle.cam.type = mujoco.mjtCamera.mjCAMERA_FIXED
+                self._handle.cam.fixedcamid = 0
         self._dt = env.unwrapped.step_dt
         self._next = time.perf_counter()
 

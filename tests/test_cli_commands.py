@@ -4,6 +4,10 @@ config show/--config, info, runs, plot, sanity agents, the viewer's headless ref
 from __future__ import annotations
 
 import json
+import os
+import shutil
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -147,3 +151,17 @@ def test_runs_and_plot_from_the_command_line(tmp_path):
     assert plotted.exit_code == 0 and png.stat().st_size > 10_000
     unknown = lab("plot", "--metric", "Train/nope", "-o", str(tmp_path / "x.png"), logs=logs)
     assert_one_line_error(unknown, "Train/nope", "Train/mean_reward")
+
+
+@pytest.mark.skipif(shutil.which("xvfb-run") is None, reason="needs Xvfb (apt-get install xvfb)")
+def test_the_viewer_opens_on_a_virtual_display(tmp_path):
+    """MuJoCo's viewer (GLFW) on Xvfb follows the rollout to its end and closes."""
+    # Not this process's MUJOCO_GL (egl, lab's headless default): with a display lab keeps GLFW.
+    env = {k: v for k, v in os.environ.items() if k != "MUJOCO_GL"}
+    result = subprocess.run(
+        ["xvfb-run", "-a", sys.executable, "-m", "labcli", "play", "--agent", "zero", "--task",
+         "cartpole", "--viewer", "--episodes", "1", "--set", "env.episode_length_s=0.4"],
+        capture_output=True, text=True, timeout=120,
+        env={**env, "LAB_LOGS_DIR": str(tmp_path)})
+    assert result.returncode == 0, result.stderr
+    assert "1 episodes: mean return" in result.stdout and "time_out" in result.stdout
