@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import threading
 import time
 from typing import Any
 
@@ -9,6 +10,8 @@ import gymnasium as gym
 
 from labcli import gl
 from labcli.errors import LabError
+
+CLOSE_TIMEOUT_S = 10.0
 
 
 def check_display() -> None:
@@ -29,7 +32,11 @@ class Viewer(gym.vector.VectorWrapper):
         import mujoco.viewer
 
         model, data = env.unwrapped.mj_scene()
+        before = set(threading.enumerate())
         self._handle = mujoco.viewer.launch_passive(model, data)
+        # The viewer's GUI thread: `close` must wait for it, or GLFW's exit handler tears GLFW
+        # down under it (seen as a segfault at exit on Xvfb).
+        self._threads = set(threading.enumerate()) - before
         if model.ncam:  # the view the videos show; the mouse still moves a free camera
             with self._handle.lock():
                 self._handle.cam.type = mujoco.mjtCamera.mjCAMERA_FIXED
@@ -57,4 +64,6 @@ class Viewer(gym.vector.VectorWrapper):
 
     def close(self, **kwargs: Any) -> None:
         self._handle.close()
+        for thread in self._threads:
+            thread.join(timeout=CLOSE_TIMEOUT_S)
         self.env.close(**kwargs)
