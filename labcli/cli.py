@@ -32,10 +32,13 @@ from labcli.errors import LabError
 from labcli.video import VideoSettings
 
 app = typer.Typer(
-    help="Train, play and export RL policies for MuJoCo robots with SB3, RSL-RL or skrl.",
+    help="Train, play and export RL policies for MuJoCo robots with SB3, RSL-RL or skrl.\n\n"
+         "Example: lab train --task cartpole --framework sb3",
     no_args_is_help=True, add_completion=True, pretty_exceptions_enable=False,
 )
-config_app = typer.Typer(help="Look at resolved configs.", no_args_is_help=True)
+config_app = typer.Typer(
+    help="Look at resolved configs.\n\nExample: lab config show --task cartpole --framework sb3",
+    no_args_is_help=True)
 app.add_typer(config_app, name="config")
 out = Console()
 err = Console(stderr=True)

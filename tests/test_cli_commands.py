@@ -11,6 +11,7 @@ import sys
 from pathlib import Path
 
 import pytest
+import typer
 import yaml
 from typer.testing import CliRunner
 
@@ -33,9 +34,20 @@ def assert_one_line_error(result, *phrases: str) -> None:
         assert phrase in result.stderr
 
 
-@pytest.mark.parametrize("command", [["runs"], ["plot"], ["info"], ["config", "show"],
-                                     ["play"], ["train"]])
-def test_every_new_command_has_an_example(command):
+def all_commands(group, prefix: tuple[str, ...] = ()) -> list[tuple[str, ...]]:
+    """The command paths of a group, itself included: ("",), ("train",), ("config", "show")..."""
+    found = [prefix]
+    for name, cmd in group.commands.items():
+        if hasattr(cmd, "commands"):  # a group
+            found += all_commands(cmd, (*prefix, name))
+        else:
+            found.append((*prefix, name))
+    return found
+
+
+@pytest.mark.parametrize("command", all_commands(typer.main.get_command(app)),
+                         ids=lambda path: " ".join(path) or "lab")
+def test_every_command_and_group_has_an_example_in_its_help(command):
     result = CliRunner().invoke(app, [*command, "--help"])
     assert result.exit_code == 0 and "Example: lab" in result.stdout
 
