@@ -300,11 +300,11 @@ def _run_training(fw: Framework, env: LabVecEnv, cfg: AgentConfig, run: runs.Run
         state = "interrupted"
         ctx.stop_requested = True
     finally:
-        wrapped.close()  # env-stage wrappers write what they hold (a video cut short)
         writer.close()
         summary = _summary(ctx, fw, run, state, time.perf_counter() - t0)
         runs.write_json(run.dir / runs.SUMMARY, summary)
         run.update_manifest(state=state)
+        wrapped.close()  # env-stage wrappers write what they hold (a video cut short)
     if state == "interrupted":
         summary["signal"] = ctx.signal or signal.SIGINT
     return TrainOutcome(run, summary)

@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import os
 import shutil
+import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -170,10 +171,18 @@ def test_the_viewer_opens_on_a_virtual_display(tmp_path):
     """MuJoCo's viewer (GLFW) on Xvfb follows the rollout to its end and closes."""
     # Not this process's MUJOCO_GL (egl, lab's headless default): with a display lab keeps GLFW.
     env = {k: v for k, v in os.environ.items() if k != "MUJOCO_GL"}
-    result = subprocess.run(
+    # Its own session, so that a hang kills Xvfb and lab too, not only the xvfb-run script.
+    proc = subprocess.Popen(
         ["xvfb-run", "-a", sys.executable, "-m", "labcli", "play", "--agent", "zero", "--task",
          "cartpole", "--viewer", "--episodes", "1", "--set", "env.episode_length_s=0.4"],
-        capture_output=True, text=True, timeout=120,
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True,
         env={**env, "LAB_LOGS_DIR": str(tmp_path)})
+    try:
+        stdout, stderr = proc.communicate(timeout=120)
+    except subprocess.TimeoutExpired:
+        os.killpg(proc.pid, signal.SIGKILL)
+        proc.communicate()
+        raise
+    result = subprocess.CompletedProcess(proc.args, proc.returncode, stdout, stderr)
     assert result.returncode == 0, result.stderr
     assert "1 episodes: mean return" in result.stdout and "time_out" in result.stdout
