@@ -13,7 +13,7 @@ from typing import Annotated, Any
 
 import typer
 from rich.console import Console
-from rich.table import Table, box
+from rich.table import Column, Table, box
 
 from labcli import (
     __version__,
@@ -90,7 +90,7 @@ def command(*args: Any, group: typer.Typer = app, **kwargs: Any) -> Callable:
     return wrap
 
 
-def _table(*columns: str, title: str | None = None) -> Table:
+def _table(*columns: str | Column, title: str | None = None) -> Table:
     table = Table(*columns, title=title, box=box.SIMPLE_HEAD if out.is_terminal else None,
                   title_justify="left")
     return table
@@ -315,15 +315,17 @@ def runs_command(
 
     Example: lab runs --task cartpole --state finished
     """
-    rows = runs.table(logs_dir or runs.default_logs_dir(), task, framework, state)
+    logs_dir = logs_dir or runs.default_logs_dir()
+    rows = runs.table(logs_dir, task, framework, state)
     if as_json:
         out.print_json(json.dumps([row.as_dict() for row in rows]))
         return
-    table = _table("run", "task", "framework", "started", "steps", "wall time", "mean return",
-                   "success", "state", title=f"{len(rows)} runs")
+    table = _table(Column("started", no_wrap=True), "task", "framework", "name", "steps",
+                   "wall time", "return", "success", Column("state", no_wrap=True),
+                   title=f"{len(rows)} runs in {logs_dir}")
     for row in rows:
         table.add_row(
-            row.dir.name, row.task, row.framework, row.started.replace("T", " "),
+            row.started.replace("T", " ")[:16], row.task, row.framework, runs.run_name(row.dir),
             _figure(row.steps, "{:,}"), _figure(row.wall_time_s, "{:.1f} s"),
             _figure(row.mean_return, "{:.1f}"), _figure(row.success_rate, "{:.0%}"), row.state)
     out.print(table)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import socket
 import tempfile
 import time
@@ -160,6 +161,15 @@ class RunRow:
 
     def as_dict(self) -> dict[str, Any]:
         return {**self.__dict__, "dir": str(self.dir)}
+
+
+_STAMPED = re.compile(r"\d{4}-\d{2}-\d{2}_\d{2}-\d{2}-\d{2}_?(.*)")
+
+
+def run_name(run_dir: Path) -> str:
+    """The `--run-name` part of a run dir's name, after its time stamp; "" if it has none."""
+    match = _STAMPED.fullmatch(run_dir.name)
+    return match.group(1) if match else run_dir.name
 
 
 def state_of(manifest: dict[str, Any], summary: dict[str, Any] | None) -> str:
