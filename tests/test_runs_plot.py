@@ -57,6 +57,12 @@ def test_finished_runs_show_their_summary(logs):
     assert [r.task for r in runs.table(logs, framework="skrl")] == ["cartpole"]
 
 
+def test_run_name_is_what_follows_the_time_stamp():
+    assert runs.run_name(Path("2026-11-23_13-38-38_peer_2")) == "peer_2"
+    assert runs.run_name(Path("2026-11-23_13-38-38")) == ""
+    assert runs.run_name(Path("2026-11-23_13-38-38-1")) == "-1"  # second run of that second
+
+
 def test_running_means_a_live_process_of_this_host_else_crashed(tmp_path):
     dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"],
                           capture_output=True, text=True, check=True)
