@@ -28,6 +28,7 @@ from labcli import (
     training,
 )
 from labcli import plot as plots
+from labcli import video as videos
 from labcli.errors import LabError
 from labcli.video import VideoSettings
 
@@ -176,6 +177,9 @@ def train(
     if s["success_rate"] is not None:
         figures.append(f"success {s['success_rate']:.0%}")
     out.print(f"{outcome.run.dir}: " + ", ".join(figures), highlight=False, soft_wrap=True)
+    if settings is not None:
+        folder = videos.folder(outcome.run.dir, videos.TRAIN)
+        out.print(f"videos: {folder}", highlight=False, soft_wrap=True)
     if s["state"] == "interrupted":
         raise typer.Exit(128 + int(s.get("signal", signal.SIGINT)))
 
