@@ -2,6 +2,10 @@
 
 from importlib.metadata import PackageNotFoundError, version
 
+from labcli import gl
+
+gl.set_default()  # before any module imports mujoco, which reads MUJOCO_GL on import
+
 try:
     __version__ = version("lab")
 except PackageNotFoundError:  # running from a source tree that was never installed

@@ -51,6 +51,9 @@ def load_file(path: Path) -> dict[str, dict[str, Any]]:
         data = yaml.safe_load(path.read_text()) or {}
     except FileNotFoundError as exc:
         raise LabError(f"config file {path} does not exist") from exc
+    except (OSError, UnicodeDecodeError) as exc:
+        reason = getattr(exc, "strerror", None) or exc
+        raise LabError(f"config file {path} cannot be read: {reason}", "pass a YAML file") from exc
     except yaml.YAMLError as exc:
         raise LabError(f"config file {path} is not valid YAML: {str(exc).splitlines()[0]}") from exc
     if not isinstance(data, dict) or set(data) - set(SECTIONS):
@@ -119,3 +122,9 @@ def _type_name(annotation: Any) -> str:
 
 def to_yaml(model: BaseModel) -> str:
     return yaml.safe_dump(model.model_dump(mode="json"), sort_keys=False)
+
+
+def dump(env: BaseModel, agent: BaseModel) -> str:
+    """Both sections as one YAML document, the form `load_file` reads back."""
+    return yaml.safe_dump({"env": env.model_dump(mode="json"),
+                           "agent": agent.model_dump(mode="json")}, sort_keys=False)

@@ -14,6 +14,7 @@ from gymnasium.vector.utils import batch_space
 
 from labcli import metrics
 from labcli.errors import LabError
+from labcli.rendering import SceneRenderer
 from labcli.sim import default_backend, make_sim
 from labcli.task import TaskConfig, TaskSpec
 
@@ -26,7 +27,7 @@ class LabVecEnv(gym.vector.VectorEnv):
     training iteration with `pop_stats()`, so stepping never waits on the host."""
 
     metadata = {"autoreset_mode": AutoresetMode.SAME_STEP}
-    render_mode = None
+    render_mode = "rgb_array"  # env 0, see `render`
 
     def __init__(self, spec: TaskSpec, cfg: TaskConfig, *, backend: str | None = None,
                  device: str = "cpu", seed: int = 0, nthread: int | None = None):
@@ -77,6 +78,7 @@ class LabVecEnv(gym.vector.VectorEnv):
         self._ended_t, self._ended_done = self._ended.t(), self._ended[:, 0]
         self._stats = torch.zeros(self._ended.shape[1], dtype=torch.float64, device=dev)
         self._all = torch.ones(n, dtype=torch.bool, device=dev)
+        self._renderer: SceneRenderer | None = None
 
     # gymnasium API ---------------------------------------------------------------------------
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
@@ -120,7 +122,29 @@ class LabVecEnv(gym.vector.VectorEnv):
         return obs, reward, terminated_any, truncated, info
 
     def close(self, **kwargs: Any) -> None:
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
         self.sim.close()
+
+    # looking at env 0 ------------------------------------------------------------------------
+    def render(self) -> np.ndarray:
+        """Env 0 as an RGB image `[height, width, 3]`, rendered offscreen."""
+        return self._scene().render(self.sim.qpos[0], self.sim.qvel[0])
+
+    def mj_scene(self) -> tuple[mujoco.MjModel, mujoco.MjData]:
+        """The model and an MjData holding env 0's current state, for MuJoCo's viewer."""
+        renderer = self._scene()
+        return renderer.model, renderer.sync(self.sim.qpos[0], self.sim.qvel[0])
+
+    def _scene(self) -> SceneRenderer:
+        if self._renderer is None:
+            self._renderer = SceneRenderer(self.sim.model)
+        return self._renderer
+
+    def action_scaling(self) -> dict[str, Any]:
+        """How a policy action in [-1, 1] becomes a control, for exported metadata."""
+        return {"action_scale": self.cfg.action_scale}
 
     # statistics ------------------------------------------------------------------------------
     def _accumulate(self, done: torch.Tensor, success: torch.Tensor,

@@ -2,20 +2,35 @@
 
 from __future__ import annotations
 
+import enum
 import statistics
+from collections.abc import Sequence
 from dataclasses import dataclass, field
+from datetime import datetime
 from pathlib import Path
 
 import torch
 
 from labcli import config, plugins, runs
+from labcli import video as videos
 from labcli.env import LabVecEnv
 from labcli.errors import LabError
 from labcli.framework import Checkpoint, Framework, Policy
 from labcli.task import TaskSpec
 from labcli.training import find_checkpoint
+from labcli.video import VideoRecorder, VideoSettings
+from labcli.viewer import Viewer, check_display
 
 TIME_OUT = "time_out"
+CPU = "cpu"  # play steps on the CPU, whatever the run trained on
+SANITY = "sanity"  # <logs>/sanity/<task>/<time>_<agent>/ holds sanity agents' videos
+
+
+class Agent(str, enum.Enum):
+    """Policies that need no training, to check a task before training it."""
+
+    zero = "zero"
+    random = "random"
 
 
 @dataclass
@@ -50,7 +65,7 @@ def load(*, run_dir: Path | None = None, checkpoint: Path | None = None,
     if num_envs is not None:
         layers.append({"num_envs": num_envs})
     env_cfg = config.build(spec.config, "env", layers)
-    env = LabVecEnv(spec, env_cfg, backend="cpu", device="cpu", seed=seed)
+    env = spec.make_env(env_cfg, backend=CPU, device="cpu", seed=seed)
     try:
         policy = fw.load_policy(ckpt.path, env)
     except BaseException:
@@ -65,6 +80,7 @@ class Episodes:
     lengths: list[int] = field(default_factory=list)
     successes: list[bool] = field(default_factory=list)
     causes: list[str] = field(default_factory=list)
+    videos: list[Path] = field(default_factory=list)
 
     @property
     def success_rate(self) -> float:
@@ -76,14 +92,15 @@ class Episodes:
 
 
 def rollout(env: LabVecEnv, act, episodes: int, seed: int = 0) -> Episodes:
-    """Step `env` with `act(obs) -> actions` until `episodes` episodes have ended. Each env
-    contributes its episodes in order, so with num_envs >= episodes none favours short ones."""
+    """Step `env` with `act(obs) -> actions` until `episodes` episodes have ended (or a viewer
+    in front of it is closed). Each env contributes its episodes in order, so with num_envs >=
+    episodes none favours short ones."""
     out = Episodes()
     obs, _ = env.reset(seed=seed)
     names = env.termination_names
     taken = torch.zeros(env.num_envs, dtype=torch.long)
     per_env = -(-episodes // env.num_envs)  # ceil: the fewest episodes each env must give
-    while len(out.returns) < episodes:
+    while len(out.returns) < episodes and getattr(env, "running", True):
         with torch.inference_mode():
             obs, _, terminated, truncated, info = env.step(act(obs))
         done = (terminated | truncated).cpu()
@@ -103,13 +120,78 @@ def rollout(env: LabVecEnv, act, episodes: int, seed: int = 0) -> Episodes:
     return out
 
 
-def play(*, episodes: int = 10, seed: int = 0, **where) -> tuple[LoadedPolicy, Episodes]:
+@dataclass(frozen=True)
+class Show:
+    """How to look at a rollout: an mp4 of env 0 (`video`), MuJoCo's viewer, or neither."""
+
+    video: VideoSettings | None = None
+    viewer: bool = False
+
+    def __post_init__(self) -> None:
+        if self.viewer:
+            check_display()  # before any env is built
+
+
+def _rollout_shown(env, act, episodes: int, seed: int, show: Show,
+                   folder: Path) -> Episodes:
+    recorder = None if show.video is None else VideoRecorder(env, folder, show.video.length,
+                                                             interval=None)
+    shown = recorder or env
+    if show.viewer:
+        shown = Viewer(shown)
+    try:
+        eps = rollout(shown, act, episodes, seed)
+    finally:
+        if shown is not env:
+            shown.close()  # writes the video; its owner closes the env again, harmlessly
+    eps.videos = list(recorder.files) if recorder else []
+    return eps
+
+
+def play(*, episodes: int = 10, seed: int = 0, show: Show = Show(),
+         **where) -> tuple[LoadedPolicy, Episodes]:
     if episodes <= 0:
         raise LabError(f"--episodes must be a positive integer, got {episodes}")
     if where.get("num_envs") is None:
         where["num_envs"] = min(episodes, 256)
     loaded = load(seed=seed, **where)
     try:
-        return loaded, rollout(loaded.env, loaded.policy, episodes, seed)
+        folder = videos.folder(loaded.run.dir, videos.PLAY)
+        return loaded, _rollout_shown(loaded.env, loaded.policy, episodes, seed, show, folder)
     finally:
         loaded.env.close()
+
+
+def sanity(task: str, agent: Agent | str, *, episodes: int = 10, seed: int = 0,
+           num_envs: int | None = None, overrides: Sequence[str] = (), show: Show = Show(),
+           logs_dir: Path | None = None) -> tuple[TaskSpec, Episodes]:
+    """Roll out `task` with zero or uniformly random actions in [-1, 1] and no checkpoint: do
+    rewards, terminations and time-outs behave before a single training step is spent?"""
+    agent = Agent(agent)
+    if episodes <= 0:
+        raise LabError(f"--episodes must be a positive integer, got {episodes}")
+    if num_envs is not None and num_envs <= 0:
+        raise LabError(f"--num-envs must be a positive integer, got {num_envs}")
+    spec = plugins.get_task(task)
+    layers = config.parse_set(overrides)
+    if layers["agent"]:
+        raise LabError(f"--agent {agent.value} has no agent settings to set",
+                       "only env.KEY=VALUE applies to a sanity agent")
+    env_cfg = config.build(spec.config, "env", [
+        layers["env"], {"num_envs": num_envs or min(episodes, 256)}])
+    env = spec.make_env(env_cfg, backend=CPU, device="cpu", seed=seed)
+    generator = torch.Generator().manual_seed(seed)
+    shape = (env.num_envs, *env.single_action_space.shape)
+
+    def act(obs: torch.Tensor) -> torch.Tensor:
+        if agent is Agent.zero:
+            return torch.zeros(shape)
+        return torch.rand(shape, generator=generator) * 2.0 - 1.0
+
+    try:
+        stamp = datetime.now().strftime("%Y-%m-%d_%H-%M-%S")
+        folder = videos.folder((logs_dir or runs.default_logs_dir()) / SANITY / task
+                               / f"{stamp}_{agent.value}", videos.PLAY)
+        return spec, _rollout_shown(env, act, episodes, seed, show, folder)
+    finally:
+        env.close()

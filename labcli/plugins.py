@@ -9,7 +9,7 @@ from typing import Any
 
 import pluggy
 
-from labcli import hookspecs
+from labcli import gym_bridge, hookspecs
 from labcli.errors import LabError, unknown_name
 
 GROUP = "lab"
@@ -136,6 +136,9 @@ def reload() -> Registry:
 
 
 def get_task(name: str):
+    """A registered task, or `gym:<id>`: any gymnasium env, made on demand."""
+    if gym_bridge.is_gym_task(name):
+        return gym_bridge.task_spec(name)
     return registry().get("task", name)
 
 

@@ -4,7 +4,10 @@ from __future__ import annotations
 
 import json
 import os
+import re
+import socket
 import tempfile
+import time
 from dataclasses import dataclass
 from datetime import datetime
 from pathlib import Path
@@ -133,3 +136,107 @@ def open_run(path: Path) -> Run:
     run = Run(path)
     run.manifest()
     return run
+
+
+# The runs table (`lab runs`) ------------------------------------------------------------------
+RUNNING, CRASHED = "running", "crashed"
+# A process that started this long after its run's recorded start is not the run's: its pid
+# was reused after the run died (the start is recorded to the second).
+PID_REUSE_SLACK_S = 5.0
+
+
+@dataclass
+class RunRow:
+    """One line of `lab runs`: the manifest and summary of a run, with its state checked."""
+
+    dir: Path
+    task: str
+    framework: str
+    started: str
+    state: str
+    steps: int | None = None
+    wall_time_s: float | None = None
+    mean_return: float | None = None
+    success_rate: float | None = None
+
+    def as_dict(self) -> dict[str, Any]:
+        return {**self.__dict__, "dir": str(self.dir)}
+
+
+_STAMPED = re.compile(r"\d{4}-\d{2}-\d{2}_\d{2}-\d{2}-\d{2}_?(.*)")
+
+
+def run_name(run_dir: Path) -> str:
+    """The `--run-name` part of a run dir's name, after its time stamp; "" if it has none."""
+    match = _STAMPED.fullmatch(run_dir.name)
+    return match.group(1) if match else run_dir.name
+
+
+def state_of(manifest: dict[str, Any], summary: dict[str, Any] | None) -> str:
+    """The summary's state once training ended; while the manifest says "running", the run
+    is running only if its process is alive on this host, else it died without a summary:
+    "crashed" (killed, out of memory, power lost)."""
+    state = (summary or manifest).get("state", RUNNING)
+    if state != RUNNING:
+        return state
+    alive = (manifest.get("host") == socket.gethostname()
+             and _process_alive(manifest.get("pid"), manifest.get("started")))
+    return RUNNING if alive else CRASHED
+
+
+def _process_alive(pid: Any, started: str | None) -> bool:
+    if not isinstance(pid, int) or pid <= 0:
+        return False
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # alive, another user's
+        pass
+    began = _process_start(pid)
+    if began is None or started is None:
+        return True
+    try:
+        recorded = datetime.fromisoformat(started).timestamp()
+    except ValueError:
+        return True
+    return began <= recorded + PID_REUSE_SLACK_S
+
+
+def _process_start(pid: int) -> float | None:
+    """When process `pid` started (Unix time), from Linux's /proc; None elsewhere."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+        boot = next(line for line in Path("/proc/stat").read_text().splitlines()
+                    if line.startswith("btime "))
+    except (OSError, StopIteration):
+        return None
+    # Field 22 (start time in clock ticks after boot) counted after the ")" that closes the
+    # command name, which may itself hold spaces.
+    ticks = int(stat.rsplit(")", 1)[1].split()[19])
+    return int(boot.split()[1]) + ticks / os.sysconf("SC_CLK_TCK")
+
+
+def table(logs_dir: Path, task: str | None = None, framework: str | None = None,
+          state: str | None = None) -> list[RunRow]:
+    """Every run under `logs_dir`, newest first, filtered by task, framework and state."""
+    rows = []
+    for run in find(logs_dir, task, framework):
+        try:
+            manifest = run.manifest()
+            summary = run.summary()
+        except (LabError, json.JSONDecodeError, OSError):
+            continue  # a run dir being written or damaged is not a row
+        row = RunRow(dir=run.dir, task=manifest.get("task", "?"),
+                     framework=manifest.get("framework", "?"),
+                     started=manifest.get("started", ""), state=state_of(manifest, summary))
+        if summary is not None:
+            row.steps, row.wall_time_s = summary.get("steps"), summary.get("wall_time_s")
+            row.mean_return, row.success_rate = (summary.get("mean_return"),
+                                                 summary.get("success_rate"))
+        elif row.state == RUNNING and row.started:
+            row.wall_time_s = round(time.time() - datetime.fromisoformat(row.started)
+                                    .timestamp(), 1)
+        if state is None or row.state == state:
+            rows.append(row)
+    return rows

@@ -15,6 +15,7 @@ import torch
 from pydantic import BaseModel, ConfigDict, Field
 
 if TYPE_CHECKING:
+    from labcli.env import LabVecEnv
     from labcli.sim import Sim
 
 
@@ -76,3 +77,10 @@ class TaskSpec:
     success: str = ""
     # framework name -> {"env": {...}, "agent": {...}} overrides, like Isaac Lab's agents/*_cfg.
     framework_defaults: Mapping[str, Mapping[str, Mapping[str, Any]]] = field(default_factory=dict)
+
+    def make_env(self, cfg: TaskConfig, *, backend: str | None = None, device: str = "cpu",
+                 seed: int = 0) -> LabVecEnv:
+        """The batched env of this task; other kinds of task (gymnasium's) build their own."""
+        from labcli.env import LabVecEnv
+
+        return LabVecEnv(self, cfg, backend=backend, device=device, seed=seed)

@@ -21,6 +21,7 @@ from rich.console import Console
 from labcli import metrics, plugins, runs, training, wrappers
 from labcli.env import LabVecEnv
 from labcli.framework import Framework, Policy
+from labcli.plot import read_scalars
 from labcli.wrappers import Stage
 
 TASK = "cartpole"
@@ -62,19 +63,6 @@ def make_env(num_envs: int = NUM_ENVS, **cfg: Any) -> LabVecEnv:
     """A cartpole env on the cpu backend with `cfg` over the task's defaults, for tests."""
     spec = plugins.get_task(TASK)
     return LabVecEnv(spec, spec.config(num_envs=num_envs, **cfg))
-
-
-def _scalars(run_dir: Path) -> dict[str, list[tuple[int, float]]]:
-    """Every TensorBoard scalar in `run_dir` as (step, value) pairs, by tag."""
-    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
-
-    out: dict[str, list[tuple[int, float]]] = {}
-    for path in sorted(run_dir.glob("events.out.tfevents.*")):
-        acc = EventAccumulator(str(path), size_guidance={"scalars": 0})
-        acc.Reload()
-        for tag in acc.Tags()["scalars"]:
-            out.setdefault(tag, []).extend((e.step, e.value) for e in acc.Scalars(tag))
-    return out
 
 
 def check_adapter(name: str, probe: Probe | None = None) -> None:
@@ -155,7 +143,7 @@ def check_training_outputs(name: str, tmp_path: Path, overrides: Sequence[str] =
     assert summary["checkpoint"] == expected[-1].name, f"{name}: summary {summary['checkpoint']}"
     assert summary["mean_return"] is not None, f"{name}: no episode stats reached the summary"
     assert json.loads((run_dir / runs.MANIFEST).read_text())["state"] == "finished"
-    scalars = _scalars(run_dir)
+    scalars = read_scalars(run_dir)
     env = make_env(1)
     try:
         tags = [metrics.EPISODES, metrics.MEAN_RETURN, metrics.MEAN_LENGTH, metrics.SUCCESS_RATE,
@@ -281,7 +269,7 @@ def check_training_improves(name: str, tmp_path: Path, overrides: Sequence[str] 
     return: the mean of the last three logged values must exceed `factor` x the first.
     Returns (first, last). Measured on 2 cores: 3-11 s per built-in framework, 4x or more."""
     outcome = train_small(name, tmp_path, iterations, overrides, num_envs=num_envs, seed=seed)
-    returns = [v for _, v in sorted(_scalars(outcome.run.dir)[metrics.MEAN_RETURN])]
+    returns = [v for _, v in sorted(read_scalars(outcome.run.dir)[metrics.MEAN_RETURN])]
     assert len(returns) >= 4, f"{name}: only {len(returns)} mean returns logged"
     first, last = returns[0], float(np.mean(returns[-3:]))
     assert last > factor * first, (

@@ -5,6 +5,7 @@ from __future__ import annotations
 import os
 import shlex
 import signal
+import socket
 import sys
 import threading
 import time
@@ -21,12 +22,14 @@ from rich.console import Console
 from torch.utils.tensorboard import SummaryWriter
 
 from labcli import __version__, config, metrics, plugins, runs, wrappers
+from labcli import video as videos
 from labcli.env import LabVecEnv
 from labcli.errors import LabError
 from labcli.framework import AgentConfig, Checkpoint, Framework
 from labcli.progress import TrainProgress
 from labcli.sim import WARP_INSTALL_HINT, default_backend
 from labcli.task import TaskConfig, TaskSpec
+from labcli.video import VideoSettings
 
 LATEST = "latest"
 STATES = ("running", "finished", "interrupted", "failed")
@@ -218,8 +221,10 @@ def train(task: str, framework: str, *, num_envs: int | None = None, seed: int =
           run_name: str | None = None, overrides: Sequence[str] = (),
           config_file: Path | None = None, checkpoint: str | None = None,
           logs_dir: Path | None = None, console: Console | None = None,
-          command: Sequence[str] | None = None) -> TrainOutcome:
-    """Train `task` with `framework`; everything is validated before anything is written."""
+          command: Sequence[str] | None = None,
+          video: VideoSettings | None = None) -> TrainOutcome:
+    """Train `task` with `framework`; everything is validated before anything is written.
+    With `video`, env 0 is recorded into <run dir>/videos/train/."""
     logs_dir = logs_dir or runs.default_logs_dir()
     console = console or Console(stderr=True)
     spec = plugins.get_task(task)
@@ -245,12 +250,13 @@ def train(task: str, framework: str, *, num_envs: int | None = None, seed: int =
             f" is {agent_cfg.max_iterations}", "pass a larger --max-iterations to train further")
 
     torch.manual_seed(seed)
-    env = LabVecEnv(spec, env_cfg, backend=backend, device=device, seed=seed)
+    env = spec.make_env(env_cfg, backend=backend, device=device, seed=seed)
     try:
         if resume is not None:
             fw.load_policy(resume.path, env)  # a corrupt or mismatched checkpoint fails here
-        pipeline = fw.pipeline(agent_cfg)
-        wrappers.validate(pipeline, fw.name)
+        wrappers.validate(_pipeline(fw, agent_cfg, video, None), fw.name)
+        if video is not None:
+            env.render()  # no GL, or an env that cannot render, fails before a run dir exists
         if run is None:
             run = runs.create(logs_dir, framework, task, run_name)
             runs.write_atomic(run.dir / runs.ENV_PARAMS, config.to_yaml(env_cfg))
@@ -263,15 +269,25 @@ def train(task: str, framework: str, *, num_envs: int | None = None, seed: int =
             "task": task, "framework": framework, "seed": seed, "device": device,
             "backend": env.backend, "num_envs": env.num_envs,
             "started": datetime.now().isoformat(timespec="seconds"), "pid": os.getpid(),
+            "host": socket.gethostname(),
             "state": "running", "versions": _versions(plugins.registry().provider(
                 "framework", framework)),
         }
         if resume is not None:
             manifest["resumed_from"] = resume.path.name
         runs.write_json(run.dir / runs.MANIFEST, manifest)
+        pipeline = _pipeline(fw, agent_cfg, video, run.dir)
         return _run_training(fw, env, agent_cfg, run, resume, seed, device, pipeline, console)
     finally:
         env.close()
+
+
+def _pipeline(fw: Framework, cfg: AgentConfig, video: VideoSettings | None,
+              run_dir: Path | None) -> list[wrappers.Step]:
+    """The env-stage wrappers lab adds, then the framework's adapter and wrappers. The video
+    folder is known once the run dir exists; the order is checked before either."""
+    env_stage = [video.step(videos.folder(run_dir or Path(), videos.TRAIN))] if video else []
+    return [*env_stage, *fw.pipeline(cfg)]
 
 
 def _run_training(fw: Framework, env: LabVecEnv, cfg: AgentConfig, run: runs.Run,
@@ -298,6 +314,7 @@ def _run_training(fw: Framework, env: LabVecEnv, cfg: AgentConfig, run: runs.Run
         summary = _summary(ctx, fw, run, state, time.perf_counter() - t0)
         runs.write_json(run.dir / runs.SUMMARY, summary)
         run.update_manifest(state=state)
+        wrapped.close()  # env-stage wrappers write what they hold (a video cut short)
     if state == "interrupted":
         summary["signal"] = ctx.signal or signal.SIGINT
     return TrainOutcome(run, summary)

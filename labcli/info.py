@@ -1,0 +1,71 @@
+"""`lab info`: versions and what this machine can do (rendering, CUDA, MuJoCo Warp)."""
+
+from __future__ import annotations
+
+import importlib.util
+import os
+from importlib.metadata import PackageNotFoundError, version
+
+import mujoco
+import torch
+
+from labcli import __version__, gl, plugins
+from labcli.errors import LabError
+from labcli.rendering import SceneRenderer
+
+PACKAGES = ("mujoco", "torch", "gymnasium", "stable-baselines3", "rsl-rl-lib", "skrl",
+            "mujoco-warp", "warp-lang")
+# One sphere: the smallest scene whose rendering exercises the whole GL path.
+PROBE_MODEL = '<mujoco><worldbody><geom type="sphere" size="0.1"/></worldbody></mujoco>'
+
+
+def collect() -> dict[str, str]:
+    """What `lab info` prints, as name → value."""
+    out = {"lab": __version__}
+    for dist in PACKAGES:
+        try:
+            out[dist] = version(dist)
+        except PackageNotFoundError:
+            out[dist] = "not installed"
+    reg = plugins.registry()
+    for name in reg.names("framework"):
+        out[f"framework {name}"] = f"from {reg.provider('framework', name)}"
+    out["MUJOCO_GL"] = f"{gl.backend()} ({_gl_origin()})"
+    out["offscreen rendering"] = _rendering()
+    out["display"] = "yes" if gl.has_display() else "no (--viewer unavailable; --video works)"
+    out["CUDA"] = (f"yes, {torch.cuda.device_count()} device(s): {torch.cuda.get_device_name(0)}"
+                   if torch.cuda.is_available() else "no")
+    out["mujoco_warp"] = _warp()
+    return out
+
+
+def _gl_origin() -> str:
+    if gl.chosen_by_lab:
+        return "lab's default without a display"
+    if gl.MUJOCO_GL in os.environ:
+        return "set in the environment"
+    return "MuJoCo's default"
+
+
+def _rendering() -> str:
+    renderer = SceneRenderer(mujoco.MjModel.from_xml_string(PROBE_MODEL), 8, 8)
+    try:
+        data = renderer.data
+        renderer.render(torch.as_tensor(data.qpos), torch.as_tensor(data.qvel))
+        return "works"
+    except LabError as exc:
+        return f"fails: {exc.message}"
+    finally:
+        renderer.close()
+
+
+def _warp() -> str:
+    if importlib.util.find_spec("mujoco_warp") is None:
+        return "not installed"
+    if not torch.cuda.is_available():
+        return "installed, not usable: no CUDA"
+    try:
+        import mujoco_warp  # noqa: F401
+    except Exception as exc:  # a broken CUDA or warp install shows here, not mid-training
+        return f"installed, fails to import: {type(exc).__name__}: {exc}"
+    return "usable (--backend warp)"

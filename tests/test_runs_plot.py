@@ -1,0 +1,106 @@
+"""`lab runs` (the runs table and honest run states) and `lab plot` (curves from TensorBoard)."""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+import socket
+import subprocess
+import sys
+from datetime import datetime, timedelta
+from pathlib import Path
+
+import matplotlib.image
+import pytest
+from rich.console import Console
+
+from labcli import metrics, plot, runs, training
+from labcli.errors import LabError
+from labcli.testing import SHORT_EPISODE, train_small
+
+SMALL = ["agent.n_steps=8", "agent.batch_size=16", "agent.n_epochs=1", SHORT_EPISODE]
+
+
+@pytest.fixture(scope="module")
+def logs(tmp_path_factory) -> Path:
+    """Two finished cartpole runs (sb3 and skrl) and one of a gymnasium task."""
+    logs = tmp_path_factory.mktemp("logs")
+    train_small("sb3", logs, 3, SMALL)
+    train_small("skrl", logs, 3, ["agent.rollouts=8", SHORT_EPISODE])
+    training.train("gym:InvertedPendulum-v5", "sb3", num_envs=2, max_iterations=2,
+                   overrides=SMALL[:3], logs_dir=logs, console=Console(file=io.StringIO()),
+                   command=["lab", "test"])
+    return logs
+
+
+def fake_run(logs: Path, name: str, **manifest) -> Path:
+    """A run dir as `lab train` leaves it while training: a manifest, no summary yet."""
+    run = logs / "rsl_rl" / "cartpole" / name
+    run.mkdir(parents=True)
+    base = {"task": "cartpole", "framework": "rsl_rl", "state": "running",
+            "started": datetime.now().isoformat(timespec="seconds"),
+            "host": socket.gethostname(), "pid": os.getpid()}
+    runs.write_json(run / runs.MANIFEST, {**base, **manifest})
+    return run
+
+
+def test_finished_runs_show_their_summary(logs):
+    rows = runs.table(logs)
+    assert [(r.framework, r.task) for r in rows] == [
+        ("sb3", "gym:InvertedPendulum-v5"), ("skrl", "cartpole"), ("sb3", "cartpole")]
+    for row in rows:
+        summary = json.loads((row.dir / runs.SUMMARY).read_text())
+        assert row.state == "finished" and row.steps == summary["steps"] > 0
+        assert row.mean_return == summary["mean_return"] and row.wall_time_s > 0
+    assert [r.framework for r in runs.table(logs, task="cartpole")] == ["skrl", "sb3"]
+    assert [r.task for r in runs.table(logs, framework="skrl")] == ["cartpole"]
+
+
+def test_run_name_is_what_follows_the_time_stamp():
+    assert runs.run_name(Path("2026-11-23_13-38-38_peer_2")) == "peer_2"
+    assert runs.run_name(Path("2026-11-23_13-38-38")) == ""
+    assert runs.run_name(Path("2026-11-23_13-38-38-1")) == "-1"  # second run of that second
+
+
+def test_running_means_a_live_process_of_this_host_else_crashed(tmp_path):
+    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"],
+                          capture_output=True, text=True, check=True)
+    old = (datetime.now() - timedelta(days=400)).isoformat(timespec="seconds")
+    fake_run(tmp_path, "alive")
+    fake_run(tmp_path, "dead_pid", pid=int(dead.stdout))
+    fake_run(tmp_path, "other_host", host="elsewhere.invalid")
+    # This process started long after that run: its pid was reused, the run died.
+    fake_run(tmp_path, "reused_pid", started=old)
+    interrupted = fake_run(tmp_path, "interrupted")
+    runs.write_json(interrupted / runs.SUMMARY, {"state": "interrupted", "steps": 64})
+    states = {row.dir.name: row.state for row in runs.table(tmp_path)}
+    assert states == {"alive": "running", "dead_pid": "crashed", "other_host": "crashed",
+                      "reused_pid": "crashed", "interrupted": "interrupted"}
+    (running,) = runs.table(tmp_path, state="running")
+    assert running.steps is None and running.wall_time_s is not None
+
+
+def test_plot_draws_one_curve_per_run(logs, tmp_path):
+    selected = plot.select(logs_dir=logs, last=2, task="cartpole")
+    result = plot.plot(selected, output=tmp_path / "curves.png")
+    assert [r.dir for r in result.plotted] == [r.dir for r in selected] and not result.skipped
+    image = matplotlib.image.imread(result.path)
+    assert image.shape[:2] == (500, 800)
+    assert (image[..., :3].std(axis=(0, 1)) > 0.05).all()  # drawn, not a blank canvas
+
+
+def test_plot_any_logged_tag_and_name_the_tags_of_an_unknown_one(logs, tmp_path):
+    selected = plot.select(logs_dir=logs)
+    plot.plot(selected, metrics.MEAN_LENGTH, tmp_path / "length.png")
+    with pytest.raises(LabError) as info:
+        plot.plot(selected, "Train/nope", tmp_path / "nope.png")
+    assert "Train/nope" in info.value.message and metrics.MEAN_RETURN in info.value.hint
+    assert not (tmp_path / "nope.png").exists()
+
+
+def test_plot_needs_runs_and_a_png_name(tmp_path):
+    with pytest.raises(LabError, match="no runs found"):
+        plot.select(logs_dir=tmp_path)
+    with pytest.raises(LabError, match="PNG"):
+        plot.plot([], output=tmp_path / "curves.pdf")

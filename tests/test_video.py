@@ -1,0 +1,88 @@
+"""Videos: the env-stage 'video' wrapper writes mp4s of env 0 that decode, and that move."""
+
+from __future__ import annotations
+
+import io
+from pathlib import Path
+
+import imageio.v2 as imageio
+import numpy as np
+import pytest
+from rich.console import Console
+
+from labcli import gl, plugins, training, video
+from labcli.errors import LabError
+from labcli.play import Agent, Show, play, sanity
+from labcli.rendering import HEIGHT, WIDTH
+from labcli.wrappers import Step, validate
+
+# Cartpole steps 0.02 s: 0.3 s episodes end after 15 steps.
+SMALL = ["agent.n_steps=8", "agent.batch_size=16", "agent.n_epochs=1", "env.episode_length_s=0.3"]
+
+
+def frames(path: Path) -> list[np.ndarray]:
+    return imageio.mimread(path, memtest=False)
+
+
+def assert_moving_video(path: Path, count: int) -> None:
+    """The file decodes to `count` frames of the renderer's size, not blank, that change over
+    time: the cart and pole move, so some pixels change by much between first and last."""
+    got = frames(path)
+    assert len(got) == count, f"{path.name}: {len(got)} frames"
+    first, last = (f.astype(np.int16) for f in (got[0], got[-1]))
+    assert first.shape == (HEIGHT, WIDTH, 3)
+    assert first.std() > 10, "a blank frame"
+    changed = (np.abs(last - first).max(axis=2) > 40).sum()
+    assert changed > 100, f"only {changed} pixels changed between the first and last frame"
+
+
+@pytest.fixture(scope="module")
+def trained(tmp_path_factory) -> training.TrainOutcome:
+    """A cartpole run of 3 SB3 iterations of 8 steps with 15-step episodes, recording 10 steps
+    every 12."""
+    return training.train(
+        "cartpole", "sb3", num_envs=4, max_iterations=3, overrides=SMALL,
+        logs_dir=tmp_path_factory.mktemp("logs"), console=Console(file=io.StringIO()),
+        command=["lab", "test"], video=video.VideoSettings(length=10, interval=12))
+
+
+def test_headless_default_is_egl():
+    if not gl.has_display():
+        assert gl.backend() == gl.HEADLESS
+
+
+def test_train_video_records_env_0_at_the_interval(trained):
+    folder = trained.run.dir / "videos" / "train"
+    assert sorted(p.name for p in folder.iterdir()) == ["step-0.mp4", "step-12.mp4"]
+    for path in folder.iterdir():
+        assert_moving_video(path, 10)
+
+
+def test_play_video_goes_to_the_run_dir_and_is_flushed_when_play_ends(trained):
+    # 2 episodes end after 15 steps: the 50-step recording is cut short, and still written.
+    _, eps = play(episodes=2, run_dir=trained.run.dir, show=Show(video.VideoSettings(50, None)))
+    (path,) = eps.videos
+    assert path == trained.run.dir / "videos" / "play" / "step-0.mp4"
+    assert eps.lengths == [15, 15] and len(frames(path)) == 15
+
+
+def test_sanity_agent_video_outside_any_run(tmp_path):
+    _, eps = sanity("cartpole", Agent.random, episodes=1, num_envs=1, logs_dir=tmp_path,
+                    show=Show(video.VideoSettings(20, None)))
+    (path,) = eps.videos
+    assert path.is_relative_to(tmp_path / "sanity" / "cartpole")
+    assert_moving_video(path, 20)
+
+
+def test_the_video_wrapper_must_come_before_the_adapter():
+    adapter = plugins.get_wrapper("sb3.adapter")
+    validate([video.VideoSettings().step(Path("v")), Step(adapter)], "sb3")
+    with pytest.raises(LabError, match="wrapper 'video' .env stage. comes after 'sb3.adapter'"):
+        validate([Step(adapter), video.VideoSettings().step(Path("v"))], "sb3")
+    assert plugins.get_wrapper("video") is video.VIDEO  # registered like any plugin's
+
+
+@pytest.mark.parametrize("length, interval", [(1, 10), (10, 0)])
+def test_bad_video_settings(length, interval):
+    with pytest.raises(LabError, match="--video-"):
+        video.VideoSettings(length, interval)
