@@ -41,7 +41,7 @@ def command(*args: Any, **kwargs: Any) -> Callable:
                 return fn(*a, **kw)
             except LabError as exc:
                 err.print(f"[bold red]error:[/] {exc}", highlight=False, soft_wrap=True)
-                raise typer.Exit(2) from None
+                raise typer.Exit(exc.exit_code) from None
 
         return app.command(*args, **kwargs)(run)
 
@@ -93,7 +93,9 @@ def train(
     task: Annotated[str, typer.Option("--task", "-t", help="Task to train, see `lab list`.")],
     framework: Annotated[str, typer.Option("--framework", "-f", help="Learning library.")],
     num_envs: Annotated[int | None, typer.Option(help="Parallel envs [task default].")] = None,
-    seed: Annotated[int, typer.Option(help="Seeds the env, torch and the framework.")] = 0,
+    seed: Annotated[int | None, typer.Option(
+        help="Seeds the env, torch, NumPy and the framework [0; a resumed run keeps its own].")
+    ] = None,
     max_iterations: Annotated[int | None, typer.Option(
         help="Rollout + update cycles [framework default].")] = None,
     device: Annotated[str, typer.Option(help="Torch device for the learner.")] = "cpu",
