@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import socket
 import tempfile
 from dataclasses import dataclass
 from datetime import datetime
@@ -20,6 +21,11 @@ ENV_PARAMS = "params/env.yaml"
 AGENT_PARAMS = "params/agent.yaml"
 COMMAND = "command.txt"
 EXPORTED = "exported"
+
+# A run's state, in summary.json and run.json. "running" is written when training starts; the
+# others when it ends. A run whose process died without saying so reads as "failed".
+RUNNING, FINISHED, INTERRUPTED, FAILED = "running", "finished", "interrupted", "failed"
+STATES = (RUNNING, FINISHED, INTERRUPTED, FAILED)
 
 
 def default_logs_dir() -> Path:
@@ -85,7 +91,75 @@ class Run:
 
     def summary(self) -> dict[str, Any] | None:
         path = self.dir / SUMMARY
-        return read_json(path) if path.is_file() else None
+        if not path.is_file():
+            return None
+        try:
+            return read_json(path)
+        except json.JSONDecodeError as exc:
+            raise LabError(f"{path} is not valid JSON: {exc}") from exc
+
+
+def run_state(run: Run) -> str:
+    """"running", "finished", "interrupted" or "failed". A run recorded as running whose process
+    is gone (SIGKILL, out of memory, a reboot) is "failed": it never wrote its end."""
+    summary = run.summary() or {}
+    manifest = run.manifest()
+    state = summary.get("state") or manifest.get("state")
+    if state == RUNNING and not _alive(manifest):
+        return FAILED
+    return state if state in STATES else FAILED
+
+
+def process_identity() -> dict[str, Any]:
+    """What tells this process apart from any other, later, with the same pid: the pid, the
+    host, and the process's start time where the OS gives it."""
+    return {"pid": os.getpid(), "host": socket.gethostname(),
+            "pid_started": _process_start(os.getpid())}
+
+
+def _process_start(pid: int) -> int | None:
+    """Clock ticks since boot at which `pid` started (Linux), None elsewhere or when gone."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return None
+    # The command name (field 2) may hold spaces and parentheses: count from its closing one.
+    return int(stat[stat.rindex(")") + 2:].split()[19])
+
+
+def _alive(manifest: dict[str, Any]) -> bool:
+    pid = manifest.get("pid")
+    if not isinstance(pid, int):
+        return False
+    if manifest.get("host") not in (None, socket.gethostname()):
+        return True  # on another machine: cannot be checked from here, trust the record
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        pass  # exists, owned by another user
+    started = manifest.get("pid_started")
+    return started is None or _process_start(pid) in (started, None)
+
+
+def check_writable(path: Path) -> None:
+    """Fail now, not after start-up, where `path` (or the directories it would be made in)
+    cannot be written: by trying, since permission bits do not tell read-only mounts or
+    immutable files, and root ignores them."""
+    existing = path
+    while not existing.exists() and existing != existing.parent:
+        existing = existing.parent
+    if not existing.is_dir():
+        raise LabError(f"cannot write runs under {path}: {existing} is not a directory",
+                       "pass a writable --logs-dir")
+    try:
+        with tempfile.TemporaryFile(dir=existing):
+            pass
+    except OSError as exc:
+        raise LabError(f"cannot write runs under {path}: {existing} is not writable "
+                       f"({exc.strerror})", "pass a writable --logs-dir, or fix its permissions"
+                       ) from exc
 
 
 def create(logs_dir: Path, framework: str, task: str, name: str | None = None) -> Run:
@@ -96,8 +170,7 @@ def create(logs_dir: Path, framework: str, task: str, name: str | None = None) -
     except OSError as exc:
         raise LabError(f"cannot create the run directory under {parent}: {exc.strerror}",
                        "pass a writable --logs-dir") from exc
-    if not os.access(parent, os.W_OK):
-        raise LabError(f"{parent} is not writable", "pass a writable --logs-dir")
+    check_writable(parent)
     stamp = datetime.now().strftime("%Y-%m-%d_%H-%M-%S")
     base = f"{stamp}_{name}" if name else stamp
     for n in range(1000):

@@ -176,6 +176,7 @@ class RslRlFramework(Framework):
             runner = LabRunner(env, cfg, ctx)
             if ctx.resume is not None:
                 runner.resume(ctx.resume.path)
+            ctx.restore_rng()
             with contextlib.suppress(_Stop):  # raised once lab's checkpoint logic is done
                 runner.learn(cfg.max_iterations - ctx.start_iteration)
             ctx.save(runner.write_checkpoint)  # no-op unless stopped mid-rollout

@@ -53,11 +53,21 @@ class Sb3PPOConfig(AgentConfig):
 class _LabCallback(BaseCallback):
     """Reports each finished PPO iteration to lab and stops on Ctrl-C at the next env step."""
 
-    def __init__(self, ctx: TrainContext, save: Any):
+    def __init__(self, ctx: TrainContext, save: Any, normalizer: VecNormalize | None = None):
         super().__init__()
-        self.ctx, self.save = ctx, save
+        self.ctx, self.save, self.normalizer = ctx, save, normalizer
         self.iteration = ctx.start_iteration
         self.started = False
+
+    def _on_training_start(self) -> None:
+        # SB3 has just reset the env (on resume, to the saved episodes). Its VecNormalize counted
+        # that reset's observations once more: put back the saved statistics and normalize the
+        # first observations with them, as the run that never stopped did.
+        if self.normalizer is not None:
+            saved = _load_normalizer(Sb3Framework.normalizer_path(self.ctx.resume.path))
+            self.normalizer.obs_rms, self.normalizer.ret_rms = saved.obs_rms, saved.ret_rms
+            self.model._last_obs = self.normalizer.normalize_obs(self.normalizer.old_obs)
+        self.ctx.restore_rng()
 
     def _on_rollout_start(self) -> None:
         # SB3 has no hook after the update; the next rollout's start is one.
@@ -99,9 +109,6 @@ class Sb3Framework(Framework):
         cfg: Sb3PPOConfig = ctx.cfg  # type: ignore[assignment]
         if ctx.resume is not None:
             model = PPO.load(ctx.resume.path, env=env, device=ctx.device)
-            if isinstance(env, VecNormalize):
-                saved = _load_normalizer(self.normalizer_path(ctx.resume.path))
-                env.obs_rms, env.ret_rms = saved.obs_rms, saved.ret_rms
         else:
             model = PPO(
                 "MlpPolicy", env, n_steps=cfg.n_steps, batch_size=cfg.batch_size,
@@ -115,6 +122,9 @@ class Sb3Framework(Framework):
         model.set_logger(configure(str(ctx.run_dir), ["tensorboard"]))
 
         def save(path: Path) -> None:
+            # After a stop mid-rollout SB3 has counted the dropped rollout's steps; the
+            # checkpoint is that of the last complete iteration, whose steps lab counted.
+            model.num_timesteps = ctx.steps
             if isinstance(env, VecNormalize):
                 target = self.normalizer_path(self.checkpoint_path(ctx.run_dir, ctx.iteration))
                 tmp = target.with_name(f".tmp_{target.name}")
@@ -122,7 +132,9 @@ class Sb3Framework(Framework):
                 os.replace(tmp, target)
             model.save(path)
 
-        callback = _LabCallback(ctx, save)
+        resumed_normalizer = env if ctx.resume is not None and isinstance(env, VecNormalize) \
+            else None
+        callback = _LabCallback(ctx, save, resumed_normalizer)
         remaining = cfg.max_iterations - ctx.start_iteration
         with one_torch_thread(ctx.device):
             model.learn(total_timesteps=remaining * cfg.n_steps * env.num_envs,

@@ -181,6 +181,7 @@ class SkrlFramework(Framework):
         agent.enable_training_mode(True)
         with one_torch_thread(ctx.device):
             obs, _ = env.reset()
+            ctx.restore_rng()
             for iteration in range(ctx.start_iteration + 1, cfg.max_iterations + 1):
                 obs, complete = _collect_and_update(agent, env, obs, ctx, iteration)
                 if not complete:
