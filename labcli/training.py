@@ -128,9 +128,15 @@ class TrainContext:
         self.saved_iteration = self.iteration
 
     def _acts_finitely(self, checkpoint: Path) -> bool:
-        policy = self.framework.load_policy(checkpoint, self.env)
-        with torch.no_grad():
-            return bool(torch.isfinite(policy(self.env.observations())).all())
+        # Loading builds networks, which draws random weights (SB3's load even reseeds every
+        # generator): the run must go on with the numbers it would have drawn without the check.
+        rng = snapshot.rng_state()
+        try:
+            policy = self.framework.load_policy(checkpoint, self.env)
+            with torch.no_grad():
+                return bool(torch.isfinite(policy(self.env.observations())).all())
+        finally:
+            snapshot.set_rng_state(rng)
 
     def _last_good(self) -> str:
         found = self.framework.checkpoints(self.run_dir)
