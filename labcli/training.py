@@ -16,9 +16,20 @@ from typing import Any
 
 import torch
 from rich.console import Console
+from torch import nn
 from torch.utils.tensorboard import SummaryWriter
 
-from labcli import __version__, config, interrupt, metrics, plugins, runs, snapshot, wrappers
+from labcli import (
+    __version__,
+    config,
+    interrupt,
+    metrics,
+    mjwarnings,
+    plugins,
+    runs,
+    snapshot,
+    wrappers,
+)
 from labcli.env import LabVecEnv
 from labcli.errors import Interrupted, LabError, TrainingDiverged
 from labcli.framework import AgentConfig, Checkpoint, Framework
@@ -46,12 +57,15 @@ class TrainContext:
     resume: Checkpoint | None = None
     resume_state: dict[str, Any] | None = None
     stop: interrupt.StopRequest = field(default_factory=interrupt.StopRequest)
+    mujoco_warnings: mjwarnings.WarningCounter = field(default_factory=mjwarnings.WarningCounter)
     iteration: int = 0
     steps: int = 0
     last_stats: dict[str, float] = field(default_factory=dict)
     saved_iteration: int = -1
     # The env and random generators at the end of the last iteration, saved with its checkpoint.
     _boundary: dict[str, Any] | None = None
+    _told_mujoco_warnings: bool = False
+    _networks: list[nn.Module] = field(default_factory=list)
     _clock: tuple[float, int] = (0.0, 0)
 
     def __post_init__(self) -> None:
@@ -94,9 +108,12 @@ class TrainContext:
             raise TrainingDiverged(
                 f"iteration {iteration}: the policy emitted non-finite actions (NaN or inf) in "
                 f"{bad:.0f} env steps; training stopped. {self._last_good()}", DIVERGED_HINT)
+        if not self.networks_finite():
+            raise self.diverged(iteration)
         self._boundary = {"env": self.env.get_state(), "rng": snapshot.rng_state(),
                           "iteration": iteration, "steps": steps}
-        figures = {**stats, metrics.STEPS_PER_S: steps_per_s, **(scalars or {})}
+        figures = {**stats, metrics.STEPS_PER_S: steps_per_s,
+                   metrics.MUJOCO_WARNINGS: self._pop_mujoco_warnings(), **(scalars or {})}
         for tag, value in figures.items():
             self.writer.add_scalar(tag, value, steps)
         self.progress.update(iteration, steps_per_s, self.last_stats.get(metrics.MEAN_RETURN),
@@ -105,6 +122,29 @@ class TrainContext:
         if due or self.stop_requested:
             self.save(save)
         return self.stop_requested
+
+    def watch(self, *networks: nn.Module) -> None:
+        """The agent's networks: after each update they are checked for NaN and inf, so that a
+        diverged update stops training with a clear message, not a library's traceback."""
+        self._networks.extend(networks)
+
+    def networks_finite(self) -> bool:
+        return all(_finite(module) for module in self._networks)
+
+    def diverged(self, iteration: int) -> TrainingDiverged:
+        return TrainingDiverged(
+            f"iteration {iteration}: its update left non-finite values (NaN or inf) in the "
+            f"agent's networks; training stopped. {self._last_good()}", DIVERGED_HINT)
+
+    def _pop_mujoco_warnings(self) -> int:
+        count = self.mujoco_warnings.pop()
+        if count and not self._told_mujoco_warnings:
+            self._told_mujoco_warnings = True
+            self.progress.console.print(
+                f"note: MuJoCo warns '{self.mujoco_warnings.first}'; the envs concerned are "
+                f"reset and counted ({metrics.INSTABILITIES}), and further warnings in "
+                f"{metrics.MUJOCO_WARNINGS}", highlight=False, soft_wrap=True)
+        return count
 
     def save(self, save: Callable[[Path], None]) -> None:
         """Write the checkpoint of the current iteration through a temporary file and a rename,
@@ -143,6 +183,11 @@ class TrainContext:
         if not found:
             return "No checkpoint was written before it."
         return f"The last good checkpoint is {found[-1].path.name}."
+
+
+def _finite(module: nn.Module) -> bool:
+    return all(bool(torch.isfinite(t).all()) for t in module.state_dict().values()
+               if t.is_floating_point())
 
 
 @dataclass
@@ -362,7 +407,7 @@ def _run_training(fw: Framework, env: LabVecEnv, cfg: AgentConfig, run: runs.Run
     state, error = runs.FAILED, None
     try:
         wrapped = wrappers.apply(env, pipeline, fw.name)
-        with progress:
+        with progress, mjwarnings.counted(ctx.mujoco_warnings):
             fw.train(wrapped, ctx)
         state = runs.INTERRUPTED if stop.requested else runs.FINISHED
     except KeyboardInterrupt:  # a second signal: the stop itself was taking too long
@@ -370,6 +415,13 @@ def _run_training(fw: Framework, env: LabVecEnv, cfg: AgentConfig, run: runs.Run
         state = runs.INTERRUPTED
     except TrainingDiverged as exc:
         error = exc
+    except Exception as exc:
+        # A library fails on NaN weights mid-update (e.g. sampling with a NaN std); any other
+        # failure is a bug and keeps its traceback.
+        if ctx.networks_finite():
+            raise
+        error = ctx.diverged(ctx.iteration + 1)
+        error.message += f" ({fw.name} failed on them: {type(exc).__name__}: {exc})"
     finally:
         writer.close()
         summary = _summary(ctx, fw, run, state, time.perf_counter() - t0)

@@ -135,6 +135,7 @@ class Sb3Framework(Framework):
         resumed_normalizer = env if ctx.resume is not None and isinstance(env, VecNormalize) \
             else None
         callback = _LabCallback(ctx, save, resumed_normalizer)
+        ctx.watch(model.policy)
         remaining = cfg.max_iterations - ctx.start_iteration
         with one_torch_thread(ctx.device):
             model.learn(total_timesteps=remaining * cfg.n_steps * env.num_envs,

@@ -179,6 +179,7 @@ class SkrlFramework(Framework):
             torch.save({**modules, META: {**meta, "steps": steps}}, path)
 
         agent.enable_training_mode(True)
+        ctx.watch(agent.policy, agent.value)
         with one_torch_thread(ctx.device):
             obs, _ = env.reset()
             ctx.restore_rng()
