@@ -38,14 +38,18 @@ class LabVecEnv(gym.vector.VectorEnv):
         # MuJoCo's own reset of a diverged state would hide it from `Sim.unstable()`: lab resets
         # such envs itself, and counts them.
         model.opt.disableflags |= mujoco.mjtDisableBit.mjDSBL_AUTORESET
+        self.step_dt = model.opt.timestep * cfg.decimation
+        steps = cfg.episode_length_s / self.step_dt
+        if not steps < 2**31:
+            raise LabError(f"an episode of {cfg.episode_length_s:g} s is {steps:.3g} env steps of "
+                           f"{self.step_dt:g} s", "shorten episode_length_s or raise sim_dt")
+        # Rounded first: 0.14 / 0.02 is 7.000000000000001, which must be 7 steps, not 8.
+        self.max_episode_length = math.ceil(round(steps, 9))
         self.backend = backend or default_backend(device)
         self.sim = make_sim(self.backend, model, cfg.num_envs, device, nthread)
         self.task = spec.task(cfg, self.sim)
         self.num_envs = cfg.num_envs
         self.device = self.sim.device
-        self.step_dt = model.opt.timestep * cfg.decimation
-        # Rounded first: 0.14 / 0.02 is 7.000000000000001, which must be 7 steps, not 8.
-        self.max_episode_length = math.ceil(round(cfg.episode_length_s / self.step_dt, 9))
 
         self.observation_names = list(self.task.observation_names)
         self.action_names = list(self.task.action_names)

@@ -29,7 +29,8 @@ if TYPE_CHECKING:
 class AgentConfig(BaseModel):
     """Settings every framework has; a plugin subclasses it with its library's hyperparameters."""
 
-    model_config = ConfigDict(extra="forbid", validate_assignment=True)
+    # NaN and inf are never meant: they would only surface later as a diverged run.
+    model_config = ConfigDict(extra="forbid", validate_assignment=True, allow_inf_nan=False)
 
     max_iterations: int = Field(100, gt=0, description="rollout + update cycles in total")
     save_interval: int = Field(50, gt=0, description="iterations between checkpoints")

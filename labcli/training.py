@@ -335,6 +335,9 @@ def _train(stop: interrupt.StopRequest, task: str, framework: str, *, num_envs: 
     console = console or Console(stderr=True)
     spec = plugins.get_task(task)
     fw = plugins.get_framework(framework)
+    for failure in plugins.registry().failures:  # what they provide is missing: say so
+        console.print(f"warning: plugin '{failure.plugin}' ({failure.provider}) failed to load: "
+                      f"{failure.error}", highlight=False, soft_wrap=True)
     device = check_device(device)
     if num_envs is not None and num_envs <= 0:
         raise LabError(f"--num-envs must be a positive integer, got {num_envs}")
@@ -346,6 +349,8 @@ def _train(stop: interrupt.StopRequest, task: str, framework: str, *, num_envs: 
         run, resume = find_checkpoint(checkpoint, logs_dir, task, fw)
         check_run_matches(run, task, framework)
         base = (run.params(runs.ENV_PARAMS), run.params(runs.AGENT_PARAMS))
+        config.check_saved(spec.config, "env", run.dir / runs.ENV_PARAMS, base[0])
+        config.check_saved(fw.agent_config, "agent", run.dir / runs.AGENT_PARAMS, base[1])
     env_cfg, agent_cfg = resolve_configs(spec, fw, base=base, config_file=config_file,
                                          overrides=overrides, num_envs=num_envs,
                                          max_iterations=max_iterations, seed=seed)
@@ -355,13 +360,14 @@ def _train(stop: interrupt.StopRequest, task: str, framework: str, *, num_envs: 
             f" is {agent_cfg.max_iterations}", "pass a larger --max-iterations to train further")
     # Before any simulation: a run that cannot be written must not cost a minute of start-up.
     runs.check_writable(run.dir if run is not None else logs_dir / framework / task)
-    resume_state = _resume_state(run, resume, env_cfg, console) if resume is not None else None
 
     snapshot.seed_all(agent_cfg.seed)
     env = LabVecEnv(spec, env_cfg, backend=backend, device=device, seed=agent_cfg.seed)
     try:
+        resume_state = None
         if resume is not None:
             fw.load_policy(resume.path, env)  # a corrupt or mismatched checkpoint fails here
+            resume_state = _resume_state(run, resume, env_cfg, console)
         pipeline = fw.pipeline(agent_cfg)
         wrappers.validate(pipeline, fw.name)
         if stop.requested:
