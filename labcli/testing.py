@@ -7,9 +7,12 @@ size and fails with an AssertionError that names the framework and what it got w
 
 from __future__ import annotations
 
+import contextlib
 import io
 import json
-from collections.abc import Callable, Sequence
+import os
+import signal
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -261,14 +264,45 @@ def check_resume(name: str, tmp_path: Path, overrides: Sequence[str] = ()) -> fl
     manifest = json.loads((first.run.dir / runs.MANIFEST).read_text())
     assert manifest.get("resumed_from") == fw.checkpoint_path(first.run.dir, 2).name
     once = train_small(name, tmp_path / "once", 4, sets)
+    # Stopped by SIGINT half-way through the fourth rollout (iteration 3, not due for a
+    # checkpoint, is saved by the stop), then resumed: the partial rollout is dropped as if it
+    # never happened.
+    steps_per_env = per_iteration // NUM_ENVS
+    with _sigint_at_env_step(3 * steps_per_env + steps_per_env // 2):
+        stopped = train_small(name, tmp_path / "interrupted", 4, sets)
+    assert stopped.summary["state"] == runs.INTERRUPTED and stopped.summary["iterations"] == 3, (
+        f"{name}: a stop in the fourth rollout gave {stopped.summary}")
+    after_stop = train_small(name, tmp_path / "interrupted", 4, sets, checkpoint=training.LATEST)
     obs = _observations()
-    resumed = _actions(name, fw.checkpoint_path(second.run.dir, 4), obs)
     unbroken = _actions(name, fw.checkpoint_path(once.run.dir, 4), obs)
-    diff = (resumed - unbroken).abs().max().item()
-    assert diff <= RESUME_TOLERANCE, (
-        f"{name}: 2 + 2 resumed iterations act differently from 4 in one go (max action "
-        f"difference {diff:.2e}): something of the training state was not carried over")
+    diff = 0.0
+    for how, run in (("2 + 2 resumed iterations", second), ("a stop mid-rollout", after_stop)):
+        resumed = _actions(name, fw.checkpoint_path(run.run.dir, 4), obs)
+        diff = max(diff, (resumed - unbroken).abs().max().item())
+        assert diff <= RESUME_TOLERANCE, (
+            f"{name}: after {how}, the policy acts differently from 4 iterations in one go (max "
+            f"action difference {diff:.2e}): some training state was not carried over")
     return diff
+
+
+@contextlib.contextmanager
+def _sigint_at_env_step(n: int) -> Iterator[None]:
+    """Sends this process SIGINT during the `n`-th env step from now, as Ctrl-C would."""
+    original = LabVecEnv.step
+    calls = 0
+
+    def step(self: LabVecEnv, actions: Any) -> Any:
+        nonlocal calls
+        calls += 1
+        if calls == n:
+            os.kill(os.getpid(), signal.SIGINT)
+        return original(self, actions)
+
+    LabVecEnv.step = step
+    try:
+        yield
+    finally:
+        LabVecEnv.step = original
 
 
 def check_determinism(name: str, tmp_path: Path, overrides: Sequence[str] = (),

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import copy
 import os
 import pickle
 import zipfile
@@ -58,12 +59,13 @@ class _LabCallback(BaseCallback):
         self.ctx, self.save, self.normalizer = ctx, save, normalizer
         self.iteration = ctx.start_iteration
         self.started = False
+        self.boundary_stats: tuple[Any, Any] | None = None
 
     def _on_training_start(self) -> None:
         # SB3 has just reset the env (on resume, to the saved episodes). Its VecNormalize counted
         # that reset's observations once more: put back the saved statistics and normalize the
         # first observations with them, as the run that never stopped did.
-        if self.normalizer is not None:
+        if self.normalizer is not None and self.ctx.resume is not None:
             saved = _load_normalizer(Sb3Framework.normalizer_path(self.ctx.resume.path))
             self.normalizer.obs_rms, self.normalizer.ret_rms = saved.obs_rms, saved.ret_rms
             self.model._last_obs = self.normalizer.normalize_obs(self.normalizer.old_obs)
@@ -76,6 +78,10 @@ class _LabCallback(BaseCallback):
         self.started = True
 
     def end_iteration(self) -> None:
+        if self.normalizer is not None:
+            # VecNormalize updates its statistics at every step: a stop mid-rollout must not
+            # save the dropped rollout's observations into the last complete iteration's.
+            self.boundary_stats = copy.deepcopy((self.normalizer.obs_rms, self.normalizer.ret_rms))
         self.iteration += 1
         self.ctx.end_iteration(self.iteration, self.model.num_timesteps, self.save)
 
@@ -128,13 +134,17 @@ class Sb3Framework(Framework):
             if isinstance(env, VecNormalize):
                 target = self.normalizer_path(self.checkpoint_path(ctx.run_dir, ctx.iteration))
                 tmp = target.with_name(f".tmp_{target.name}")
-                env.save(tmp)
+                live = env.obs_rms, env.ret_rms
+                if callback.boundary_stats is not None:
+                    env.obs_rms, env.ret_rms = callback.boundary_stats
+                try:
+                    env.save(tmp)
+                finally:
+                    env.obs_rms, env.ret_rms = live
                 os.replace(tmp, target)
             model.save(path)
 
-        resumed_normalizer = env if ctx.resume is not None and isinstance(env, VecNormalize) \
-            else None
-        callback = _LabCallback(ctx, save, resumed_normalizer)
+        callback = _LabCallback(ctx, save, env if isinstance(env, VecNormalize) else None)
         ctx.watch(model.policy)
         remaining = cfg.max_iterations - ctx.start_iteration
         with one_torch_thread(ctx.device):
