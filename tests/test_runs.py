@@ -2,13 +2,17 @@
 
 from __future__ import annotations
 
+import io
 import json
 import os
 import subprocess
 import sys
 from datetime import datetime
 
-from labcli import runs
+import yaml
+from rich.console import Console
+
+from labcli import metrics, runs, testing, training
 
 
 class FrozenClock(datetime):
@@ -51,3 +55,24 @@ def test_run_state_follows_the_summary_and_the_process(tmp_path):
     (tmp_path / runs.SUMMARY).unlink()  # summary not written yet: the manifest says
     assert runs.run_state(write_run(tmp_path, running)) == runs.RUNNING
     assert json.loads((tmp_path / runs.MANIFEST).read_text())["pid"] == os.getpid()
+
+
+def test_a_run_is_reproduced_from_its_params_dir(tmp_path):
+    """params/env.yaml and params/agent.yaml hold everything, the seed included: fed back as a
+    --config file (no other flags) they give the same returns and the same policy."""
+    sets = ["agent.n_steps=8", "agent.batch_size=16", "agent.n_epochs=2", "agent.net_arch=[16]",
+            testing.SHORT_EPISODE]
+    first = testing.train_small("sb3", tmp_path / "a", 2, sets, seed=7)
+    params = first.run.dir / "params"
+    agent = yaml.safe_load((params / "agent.yaml").read_text())
+    assert agent["seed"] == 7
+    config = tmp_path / "again.yaml"
+    config.write_text(yaml.safe_dump({"env": yaml.safe_load((params / "env.yaml").read_text()),
+                                      "agent": agent}))
+    again = training.train("cartpole", "sb3", config_file=config, logs_dir=tmp_path / "b",
+                           console=Console(file=io.StringIO()))
+    returns = [[v for _, v in sorted(testing._scalars(o.run.dir)[metrics.MEAN_RETURN])]
+               for o in (first, again)]
+    assert returns[0] == returns[1] and len(returns[0]) == 2
+    assert (again.run.dir / "params" / "agent.yaml").read_text() == \
+        (params / "agent.yaml").read_text()
