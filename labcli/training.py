@@ -33,10 +33,12 @@ from labcli import (
 from labcli.env import LabVecEnv
 from labcli.errors import Interrupted, LabError, TrainingDiverged
 from labcli.framework import AgentConfig, Checkpoint, Framework
+from labcli.lastgood import LastGood
 from labcli.progress import TrainProgress
 from labcli.task import TaskConfig, TaskSpec
 
 LATEST = "latest"
+NONFINITE_NETWORKS = "its update left non-finite values (NaN or inf) in the agent's networks"
 DIVERGED_HINT = ("lower agent.learning_rate (or raise its clipping) and resume from the last good "
                  "checkpoint with --checkpoint")
 
@@ -66,6 +68,7 @@ class TrainContext:
     _boundary: dict[str, Any] | None = None
     _told_mujoco_warnings: bool = False
     _networks: list[nn.Module] = field(default_factory=list)
+    last_good: LastGood = field(init=False)
     _clock: tuple[float, int] = (0.0, 0)
 
     def __post_init__(self) -> None:
@@ -74,6 +77,7 @@ class TrainContext:
         if self.resume_state is not None:
             self.steps = self.resume_state["steps"]
         self._clock = (time.perf_counter(), self.steps)
+        self.last_good = LastGood(self.run_dir, self.framework)
 
     @property
     def start_iteration(self) -> int:
@@ -104,14 +108,15 @@ class TrainContext:
         if stats:
             self.last_stats = stats
         bad = stats.get(metrics.NONFINITE_ACTIONS, 0)
-        if bad:
-            raise TrainingDiverged(
-                f"iteration {iteration}: the policy emitted non-finite actions (NaN or inf) in "
-                f"{bad:.0f} env steps; training stopped. {self._last_good()}", DIVERGED_HINT)
-        if not self.networks_finite():
-            raise self.diverged(iteration)
+        if bad:  # the candidate, which acted in this rollout, is bad
+            raise self._diverged(iteration, "the policy emitted non-finite actions (NaN or inf) "
+                                 f"in {bad:.0f} env steps", candidate_proven=False)
+        if not self.networks_finite():  # the candidate acted well; this update broke it
+            raise self._diverged(iteration, NONFINITE_NETWORKS, candidate_proven=True)
+        self.last_good.promote()
         self._boundary = {"env": self.env.get_state(), "rng": snapshot.rng_state(),
                           "iteration": iteration, "steps": steps}
+        self.last_good.keep(iteration, self._boundary, save)
         figures = {**stats, metrics.STEPS_PER_S: steps_per_s,
                    metrics.MUJOCO_WARNINGS: self._pop_mujoco_warnings(), **(scalars or {})}
         for tag, value in figures.items():
@@ -131,10 +136,18 @@ class TrainContext:
     def networks_finite(self) -> bool:
         return all(_finite(module) for module in self._networks)
 
-    def diverged(self, iteration: int) -> TrainingDiverged:
-        return TrainingDiverged(
-            f"iteration {iteration}: its update left non-finite values (NaN or inf) in the "
-            f"agent's networks; training stopped. {self._last_good()}", DIVERGED_HINT)
+    def failed_on_networks(self, exc: Exception) -> TrainingDiverged:
+        """For a library that failed in an update on the NaN it produced: the candidate is
+        proven if it acted finitely in the rollout before."""
+        acted_finitely = not self.env.pop_stats().get(metrics.NONFINITE_ACTIONS, 0)
+        error = self._diverged(self.iteration + 1, NONFINITE_NETWORKS, acted_finitely)
+        error.message += f" ({self.framework.name} failed on them: {type(exc).__name__}: {exc})"
+        return error
+
+    def _diverged(self, iteration: int, what: str, candidate_proven: bool) -> TrainingDiverged:
+        self.last_good.commit(candidate_proven)
+        return TrainingDiverged(f"iteration {iteration}: {what}; training stopped. "
+                                f"{self._last_good()}", DIVERGED_HINT)
 
     def _pop_mujoco_warnings(self) -> int:
         count = self.mujoco_warnings.pop()
@@ -160,10 +173,8 @@ class TrainContext:
         save(tmp)
         if not self._acts_finitely(tmp):
             tmp.unlink()
-            raise TrainingDiverged(
-                f"iteration {self.iteration}: the policy's actions are not finite (NaN or inf) "
-                f"after this iteration's update; training stopped. {self._last_good()}",
-                DIVERGED_HINT)
+            raise self._diverged(self.iteration, "the policy's actions are not finite (NaN or "
+                                 "inf) after this iteration's update", candidate_proven=False)
         os.replace(tmp, target)
         self.saved_iteration = self.iteration
 
@@ -426,10 +437,10 @@ def _run_training(fw: Framework, env: LabVecEnv, cfg: AgentConfig, run: runs.Run
         # failure is a bug and keeps its traceback.
         if ctx.networks_finite():
             raise
-        error = ctx.diverged(ctx.iteration + 1)
-        error.message += f" ({fw.name} failed on them: {type(exc).__name__}: {exc})"
+        error = ctx.failed_on_networks(exc)
     finally:
         writer.close()
+        ctx.last_good.discard()
         summary = _summary(ctx, fw, run, state, time.perf_counter() - t0)
         if error is not None:
             summary["error"] = error.message

@@ -181,7 +181,7 @@ KILLED_MID_SAVE = textwrap.dedent("""
 
     original = PPO.save
     def slow_save(self, path, *args, **kwargs):
-        if "model_2" in str(path):
+        if Path(path).name == ".tmp_model_2.zip":
             Path(path).write_bytes(b"PK half a checkpoint")
             print("writing", flush=True)
             time.sleep(60)

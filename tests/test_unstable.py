@@ -110,16 +110,18 @@ def poison_update(monkeypatch, name: str, on_call: int) -> None:
 def test_a_diverged_update_stops_training_and_keeps_the_last_good_checkpoint(
         name, tmp_path, monkeypatch):
     poison_update(monkeypatch, name, on_call=3)
-    with pytest.raises(TrainingDiverged) as err:
-        testing.train_small(name, tmp_path, 10, [*SMALL[name], "agent.save_interval=2"])
+    with pytest.raises(TrainingDiverged) as err:  # no checkpoint due before iteration 10
+        testing.train_small(name, tmp_path, 10, [*SMALL[name], "agent.save_interval=10"])
     message = str(err.value)
     assert "iteration 3:" in message and "non-finite values" in message
     assert "\n" not in message
     (run_dir,) = {p.parent for p in tmp_path.glob("*/cartpole/*/run.json")}
     fw = plugins.get_framework(name)
     good = fw.checkpoints(run_dir)[-1]
-    assert good.iteration == 2 and good.path.name in message
+    assert good.iteration == 2 and good.path.name in message  # kept since, saved on failure
     assert finite_policy(name, good.path)
+    assert (run_dir / "state_2.pt").is_file()  # it resumes exactly, too
+    assert not list(run_dir.glob(".candidate")) and not list(run_dir.glob(".good"))
     summary = json.loads((run_dir / runs.SUMMARY).read_text())
     assert summary["state"] == runs.FAILED and summary["checkpoint"] == good.path.name
     assert summary["error"] == err.value.message
@@ -143,10 +145,14 @@ def test_nan_actions_from_finite_weights_stop_training(tmp_path, monkeypatch):
 
     monkeypatch.setattr(ActorCriticPolicy, "forward", nan_from_the_third_rollout)
     with pytest.raises(TrainingDiverged) as err:
-        testing.train_small("sb3", tmp_path, 10, [*SMALL["sb3"], "agent.save_interval=1"])
+        testing.train_small("sb3", tmp_path, 10, [*SMALL["sb3"], "agent.save_interval=10"])
     assert str(err.value).startswith("iteration 3: the policy emitted non-finite actions (NaN "
                                      "or inf) in 32 env steps")
-    assert "model_2.zip" in str(err.value)
+    # The weights after update 2 acted in the bad rollout; those after update 1 did well.
+    assert "The last good checkpoint is model_1.zip." in str(err.value)
+    (run_dir,) = {p.parent for p in tmp_path.glob("sb3/cartpole/*/run.json")}
+    assert [c.iteration for c in plugins.get_framework("sb3").checkpoints(run_dir)] == [1]
+    assert (run_dir / "vecnormalize_1.pkl").is_file()
 
 
 def test_a_diverging_cli_run_is_one_line_and_exit_code_3(tmp_path):

@@ -132,7 +132,7 @@ class Sb3Framework(Framework):
             # checkpoint is that of the last complete iteration, whose steps lab counted.
             model.num_timesteps = ctx.steps
             if isinstance(env, VecNormalize):
-                target = self.normalizer_path(self.checkpoint_path(ctx.run_dir, ctx.iteration))
+                target = self.normalizer_path(path)
                 tmp = target.with_name(f".tmp_{target.name}")
                 live = env.obs_rms, env.ret_rms
                 if callback.boundary_stats is not None:
