@@ -78,6 +78,7 @@ class TrainContext:
             self.steps = self.resume_state["steps"]
         self._clock = (time.perf_counter(), self.steps)
         self.last_good = LastGood(self.run_dir, self.framework)
+        self.last_good.discard()  # left by a killed run: not this run's, never to be committed
 
     @property
     def start_iteration(self) -> int:
