@@ -5,6 +5,7 @@ input gives a traceback."""
 from __future__ import annotations
 
 import dataclasses
+import os
 import shutil
 import subprocess
 from pathlib import Path
@@ -172,6 +173,15 @@ def test_a_boolean_for_a_count_is_refused():
                           "expected int")
 
 
+@pytest.fixture(scope="module")
+def mujoco_log_dir(tmp_path_factory):
+    """Exploding configs make MuJoCo append warnings to ./MUJOCO_LOG.TXT outside training."""
+    cwd = os.getcwd()
+    os.chdir(tmp_path_factory.mktemp("cwd"))
+    yield
+    os.chdir(cwd)
+
+
 # Any --set and --num-envs: a working env, or one LabError line ------------------------------
 KEYS = {"env": sorted(CartpoleConfig.model_fields), "agent": sorted(Sb3PPOConfig.model_fields)}
 yaml_values = st.recursive(
@@ -196,7 +206,7 @@ set_items = st.one_of(
 @example(items=["env.decimation=1000000000"], num_envs=None)
 @example(items=["env.sim_dt=.nan"], num_envs=None)
 @example(items=[], num_envs=10**12)
-def test_any_set_and_num_envs_work_or_are_one_lab_error(items, num_envs):
+def test_any_set_and_num_envs_work_or_are_one_lab_error(items, num_envs, mujoco_log_dir):
     spec, fw = plugins.get_task("cartpole"), plugins.get_framework("sb3")
     try:
         env_cfg, _ = training.resolve_configs(spec, fw, overrides=items, num_envs=num_envs)
