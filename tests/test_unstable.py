@@ -168,3 +168,18 @@ def test_a_diverging_cli_run_is_one_line_and_exit_code_3(tmp_path):
     assert "Traceback" not in result.output
     (summary,) = logs.glob("sb3/cartpole/*/summary.json")
     assert json.loads(summary.read_text())["state"] == runs.FAILED
+
+
+def test_kept_states_of_a_killed_run_are_never_committed(tmp_path, monkeypatch):
+    """A SIGKILL leaves the hidden kept states behind; a resumed run that diverges at once must
+    not bring them back as checkpoints."""
+    first = testing.train_small("sb3", tmp_path, 2, SMALL["sb3"])
+    run_dir = first.run.dir
+    for stale in (".candidate", ".good"):
+        (run_dir / stale).mkdir()
+        (run_dir / stale / "model_9.zip").write_bytes((run_dir / "model_2.zip").read_bytes())
+    poison_update(monkeypatch, "sb3", on_call=1)
+    with pytest.raises(TrainingDiverged) as err:
+        testing.train_small("sb3", tmp_path, 5, SMALL["sb3"], checkpoint="latest")
+    assert "iteration 3:" in str(err.value) and "model_2.zip" in str(err.value)
+    assert [c.iteration for c in plugins.get_framework("sb3").checkpoints(run_dir)] == [2]
