@@ -1,3 +1,3 @@
-from labcli.cli import main
+from labcli.launch import main
 
 main()

@@ -84,7 +84,7 @@ def command(*args: Any, group: typer.Typer = app, **kwargs: Any) -> Callable:
                 return fn(*a, **kw)
             except LabError as exc:
                 err.print(f"[bold red]error:[/] {exc}", highlight=False, soft_wrap=True)
-                raise typer.Exit(2) from None
+                raise typer.Exit(exc.exit_code) from None
 
         return group.command(*args, **kwargs)(run)
 
@@ -142,7 +142,9 @@ def train(
     framework: Annotated[str, typer.Option("--framework", "-f", help="Learning library.",
                                            autocompletion=complete_framework)],
     num_envs: Annotated[int | None, typer.Option(help="Parallel envs [task default].")] = None,
-    seed: Annotated[int, typer.Option(help="Seeds the env, torch and the framework.")] = 0,
+    seed: Annotated[int | None, typer.Option(
+        help="Seeds the env, torch, NumPy and the framework [0; a resumed run keeps its own].")
+    ] = None,
     max_iterations: Annotated[int | None, typer.Option(
         help="Rollout + update cycles [framework default].")] = None,
     device: Annotated[str | None, typer.Option(
@@ -312,12 +314,12 @@ def runs_command(
     task: TaskOpt = None,
     framework: FrameworkOpt = None,
     state: Annotated[str | None, typer.Option(
-        help="Filter by state: finished, interrupted, failed, running or crashed.")] = None,
+        help="Filter by state: finished, interrupted, failed or running.")] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON instead of a table.")] = False,
     logs_dir: LogsDir = None,
 ) -> None:
     """List runs, newest first: task, framework, start, steps, wall time, final mean return,
-    success rate and state ("crashed": it died without a summary).
+    success rate and state ("failed": it stopped on an error or died without a summary).
 
     Example: lab runs --task cartpole --state finished
     """

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import copy
 import difflib
+import types
 import typing
 from collections.abc import Iterable, Mapping
 from pathlib import Path
@@ -82,10 +83,73 @@ def build(model: type[BaseModel], section: str, layers: Iterable[Mapping[str, An
     for key, value in data.items():
         if isinstance(value, Mapping) and isinstance(defaults.get(key), dict):
             data[key] = merge(defaults[key], value)
+    _reject_bools_as_numbers(model, data, section)
     try:
         return model.model_validate(data)
     except ValidationError as exc:
         raise _explain(exc, model, section) from None
+
+
+def check_saved(model: type[BaseModel], section: str, path: Path, data: Mapping[str, Any]
+                ) -> None:
+    """Validate a run's saved params on their own, so that an error names the file (damaged or
+    edited by hand) rather than a key the user never passed."""
+    try:
+        build(model, section, [data])
+    except LabError as exc:
+        raise LabError(f"{path}: {exc.message}", exc.hint or "fix or restore the file") from None
+
+
+def _reject_bools_as_numbers(model: type[BaseModel], data: Mapping[str, Any], section: str
+                             ) -> None:
+    """pydantic's lax mode reads `true` as 1 for a number (`--set env.num_envs=true` would run
+    one env); strict mode would also refuse the string YAML makes of `3e-4`. So: lax, but no
+    booleans where only numbers go."""
+    for key, value in data.items():
+        field = model.model_fields.get(key)
+        path = _bool_in_number(field.annotation, value, [key]) if field else None
+        if path is not None:
+            annotation = _annotation_at(field.annotation, len(path) - 1)
+            raise LabError(f"bad value for '{'.'.join([section, *map(str, path)])}': a boolean "
+                           f"where a number is expected (got {_value_at(value, path[1:])!r})",
+                           f"expected {_type_name(annotation)}")
+
+
+def _bool_in_number(annotation: Any, value: Any, path: list) -> list | None:
+    """The path to a bool inside `value` where `annotation` takes only numbers, or None."""
+    origin, args = typing.get_origin(annotation), typing.get_args(annotation)
+    if origin is typing.Annotated:
+        return _bool_in_number(args[0], value, path)
+    if origin in (typing.Union, types.UnionType):
+        numeric = [a for a in args if a is not type(None)]
+        return _bool_in_number(numeric[0], value, path) if len(numeric) == 1 else None
+    if isinstance(value, bool):
+        return path if _numbers_only(annotation) else None
+    if isinstance(value, (list, tuple)) and origin in (list, tuple, set, frozenset) and args:
+        for i, item in enumerate(value):
+            item_type = args[0] if origin is not tuple or args[-1] is Ellipsis else \
+                args[min(i, len(args) - 1)]
+            found = _bool_in_number(item_type, item, [*path, i])
+            if found:
+                return found
+    if isinstance(value, Mapping) and origin is dict and len(args) == 2:
+        for key, item in value.items():
+            found = _bool_in_number(args[1], item, [*path, key])
+            if found:
+                return found
+    return None
+
+
+def _numbers_only(annotation: Any) -> bool:
+    if typing.get_origin(annotation) is typing.Annotated:
+        return _numbers_only(typing.get_args(annotation)[0])
+    return annotation in (int, float)
+
+
+def _value_at(value: Any, path: list) -> Any:
+    for key in path:
+        value = value[key]
+    return value
 
 
 def _explain(exc: ValidationError, model: type[BaseModel], section: str) -> LabError:

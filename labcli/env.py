@@ -36,14 +36,18 @@ class LabVecEnv(gym.vector.VectorEnv):
         model = mujoco.MjModel.from_xml_path(str(spec.model))
         if cfg.sim_dt is not None:
             model.opt.timestep = cfg.sim_dt
+        self.step_dt = model.opt.timestep * cfg.decimation
+        steps = cfg.episode_length_s / self.step_dt
+        if not steps < 2**31:
+            raise LabError(f"an episode of {cfg.episode_length_s:g} s is {steps:.3g} env steps of "
+                           f"{self.step_dt:g} s", "shorten episode_length_s or raise sim_dt")
+        # Rounded first: 0.14 / 0.02 is 7.000000000000001, which must be 7 steps, not 8.
+        self.max_episode_length = math.ceil(round(steps, 9))
         self.backend = backend or default_backend(device)
         self.sim = make_sim(self.backend, model, cfg.num_envs, device, nthread)
         self.task = spec.task(cfg, self.sim)
         self.num_envs = cfg.num_envs
         self.device = self.sim.device
-        self.step_dt = model.opt.timestep * cfg.decimation
-        # Rounded first: 0.14 / 0.02 is 7.000000000000001, which must be 7 steps, not 8.
-        self.max_episode_length = math.ceil(round(cfg.episode_length_s / self.step_dt, 9))
 
         self.observation_names = list(self.task.observation_names)
         self.action_names = list(self.task.action_names)
@@ -73,24 +77,29 @@ class LabVecEnv(gym.vector.VectorEnv):
         k = len(self.reward_names)
         self._weighted = torch.empty(n, k, device=dev)
         # One row per env, one column per figure that `pop_stats` reports (see `_accumulate`).
-        self._ended = torch.empty(n, 4 + k + len(self.termination_names), dtype=torch.float64,
+        self._ended = torch.empty(n, 5 + k + len(self.termination_names), dtype=torch.float64,
                                   device=dev)
         self._ended_t, self._ended_done = self._ended.t(), self._ended[:, 0]
         self._stats = torch.zeros(self._ended.shape[1], dtype=torch.float64, device=dev)
         self._all = torch.ones(n, dtype=torch.bool, device=dev)
         self._renderer: SceneRenderer | None = None
+        self._resume_state: dict[str, torch.Tensor] | None = None
 
     # gymnasium API ---------------------------------------------------------------------------
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         if seed is not None:
             self.generator.manual_seed(seed)
         mask = (options or {}).get("reset_mask")
-        if mask is None:
+        if mask is None and self._resume_state is not None:
+            self.set_state(self._resume_state)
+            self._resume_state = None
+            self._stats.zero_()
+        elif mask is None:
             self._reset_envs(self._all)
             self._stats.zero_()
         else:  # gymnasium's way to reset some envs only
             self._reset_envs(torch.as_tensor(mask, dtype=torch.bool, device=self.device))
-        return self._observations(), {}
+        return self.observations(), {}
 
     def step(self, actions: torch.Tensor):
         actions = torch.as_tensor(actions, device=self.device, dtype=torch.float32)
@@ -109,14 +118,14 @@ class LabVecEnv(gym.vector.VectorEnv):
         terminated_any = terminated.any(dim=1)
         done = terminated_any | (self.episode_length >= self.max_episode_length)
         truncated = done ^ terminated_any  # timed out and not terminated
-        final_obs = self._observations()
+        final_obs = self.observations()
         success = self.task.success(truncated) & truncated
         episode = {"r": self.episode_return.clone(), "l": self.episode_length.clone(),
                    "success": success}
-        self._accumulate(done, success, terminated)
+        self._accumulate(done, success, terminated, bad_action)
 
         self._reset_envs(done)
-        obs = self._observations()
+        obs = self.observations()
         info = {"final_obs": final_obs, "_final_obs": done, "episode": episode, "_episode": done,
                 "terminations": terminated}
         return obs, reward, terminated_any, truncated, info
@@ -146,14 +155,46 @@ class LabVecEnv(gym.vector.VectorEnv):
         """How a policy action in [-1, 1] becomes a control, for exported metadata."""
         return {"action_scale": self.cfg.action_scale}
 
+    # resume ----------------------------------------------------------------------------------
+    def get_state(self) -> dict[str, torch.Tensor]:
+        """What continues every episode exactly where it is: the sim's positions, velocities and
+        controls (what tasks read and write), episode counters and the reset generator."""
+        return {
+            "qpos": self.sim.qpos.clone(), "qvel": self.sim.qvel.clone(),
+            "ctrl": self.sim.ctrl.clone(), "episode_length": self.episode_length.clone(),
+            "episode_return": self.episode_return.clone(),
+            "episode_terms": self.episode_terms.clone(), "generator": self.generator.get_state(),
+        }
+
+    def set_state(self, state: dict[str, torch.Tensor]) -> None:
+        targets = {"qpos": self.sim.qpos, "qvel": self.sim.qvel, "ctrl": self.sim.ctrl,
+                   "episode_length": self.episode_length, "episode_return": self.episode_return,
+                   "episode_terms": self.episode_terms}
+        for name, target in targets.items():  # all checked before any is changed
+            if tuple(state[name].shape) != tuple(target.shape):
+                raise LabError(f"saved env state '{name}' has shape {tuple(state[name].shape)}, "
+                               f"this env {tuple(target.shape)}",
+                               "resume with the num_envs and task the checkpoint was trained with")
+        for name, target in targets.items():
+            target.copy_(state[name])
+        self.generator.set_state(state["generator"])
+
+    def resume_from(self, state: dict[str, torch.Tensor]) -> None:
+        """Make the next full `reset()` continue the saved episodes instead of starting new ones:
+        every library resets its env once before training, and a resumed run must go on from
+        where the checkpoint left off, as if it had never stopped."""
+        self._resume_state = state
+
     # statistics ------------------------------------------------------------------------------
-    def _accumulate(self, done: torch.Tensor, success: torch.Tensor,
-                    terminated: torch.Tensor) -> None:
+    def _accumulate(self, done: torch.Tensor, success: torch.Tensor, terminated: torch.Tensor,
+                    bad_action: torch.Tensor) -> None:
         """Add the ended episodes' figures to the running sums: a column per figure, summed
-        over the envs weighted by `done` in one matrix-vector product, not an op per figure."""
+        over the envs weighted by `done` in one matrix-vector product, not an op per figure.
+        A non-finite action always ends its episode, so `done` weights count those too."""
         # float32 holds lengths exactly up to 2**24 steps, far beyond any time-out.
         ends = torch.stack((done, self.episode_return, self.episode_length, success), dim=1)
-        torch.cat((ends, self.episode_terms, terminated), dim=1, out=self._ended)
+        torch.cat((ends, self.episode_terms, terminated, bad_action[:, None]), dim=1,
+                  out=self._ended)
         self._stats.addmv_(self._ended_t, self._ended_done)
 
     def pop_stats(self) -> dict[str, float]:
@@ -173,9 +214,11 @@ class LabVecEnv(gym.vector.VectorEnv):
         }
         for name, total in zip(self.reward_names, values[4:4 + k], strict=True):
             stats[metrics.REWARD_TERM + name] = total / count
-        for name, total in zip(self.termination_names, values[4 + k:], strict=True):
+        terminations = values[4 + k:-1]
+        for name, total in zip(self.termination_names, terminations, strict=True):
             stats[metrics.TERMINATION + name] = total / count
-        stats[metrics.INSTABILITIES] = values[-1]
+        stats[metrics.INSTABILITIES] = terminations[-1]
+        stats[metrics.NONFINITE_ACTIONS] = values[-1]
         return stats
 
     # internals -------------------------------------------------------------------------------
@@ -199,5 +242,6 @@ class LabVecEnv(gym.vector.VectorEnv):
         self.episode_terms += weighted
         return reward
 
-    def _observations(self) -> torch.Tensor:
+    def observations(self) -> torch.Tensor:
+        """The current observations: what the last step or reset returned."""
         return self.task.observations().to(torch.float32).nan_to_num(0.0, 0.0, 0.0)

@@ -9,6 +9,8 @@ from collections.abc import Iterable
 class LabError(Exception):
     """Bad input or state the user can fix; anything else is a bug and keeps its traceback."""
 
+    exit_code = 2
+
     def __init__(self, message: str, hint: str | None = None):
         super().__init__(message)
         self.message = message
@@ -16,6 +18,21 @@ class LabError(Exception):
 
     def __str__(self) -> str:
         return f"{self.message} ({self.hint})" if self.hint else self.message
+
+
+class TrainingDiverged(LabError):
+    """Training cannot go on (the policy emits non-finite actions); the run dir keeps its last
+    good checkpoint. Exit code 3 tells it apart from bad input."""
+
+    exit_code = 3
+
+
+class Interrupted(LabError):
+    """SIGINT or SIGTERM before there was a run to save; exits 128 + the signal's number."""
+
+    def __init__(self, message: str, exit_code: int):
+        super().__init__(message)
+        self.exit_code = exit_code
 
 
 def unknown_name(kind: str, name: str, known: Iterable[str]) -> LabError:

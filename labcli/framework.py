@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import contextlib
 import re
+import zipfile
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -28,10 +29,12 @@ if TYPE_CHECKING:
 class AgentConfig(BaseModel):
     """Settings every framework has; a plugin subclasses it with its library's hyperparameters."""
 
-    model_config = ConfigDict(extra="forbid", validate_assignment=True)
+    # NaN and inf are never meant: they would only surface later as a diverged run.
+    model_config = ConfigDict(extra="forbid", validate_assignment=True, allow_inf_nan=False)
 
     max_iterations: int = Field(100, gt=0, description="rollout + update cycles in total")
     save_interval: int = Field(50, gt=0, description="iterations between checkpoints")
+    seed: int = Field(0, ge=0, lt=2**32, description="seeds the env, torch, NumPy and Python")
 
 
 class ObsNormalizer(nn.Module):
@@ -78,6 +81,9 @@ def one_torch_thread(device: str) -> Iterator[None]:
         torch.set_num_threads(previous)
 
 
+ZIP_SUFFIXES = (".zip", ".pt", ".pth")
+
+
 @dataclass
 class Checkpoint:
     path: Path
@@ -105,7 +111,9 @@ class Framework:
 
     def train(self, env: object, ctx: TrainContext) -> None:
         """Train on the wrapped `env` until `ctx.cfg.max_iterations`, calling
-        `ctx.end_iteration` after each iteration and `ctx.save` for checkpoints."""
+        `ctx.end_iteration` after each iteration and `ctx.save` for checkpoints, stopping at the
+        next env step once `ctx.stop_requested`. On resume (`ctx.resume`), load the checkpoint,
+        then call `ctx.restore_rng()` right before the first rollout."""
         raise NotImplementedError
 
     def load_policy(self, checkpoint: Path, env: LabVecEnv) -> Policy:
@@ -114,6 +122,24 @@ class Framework:
 
     def checkpoint_path(self, run_dir: Path, iteration: int) -> Path:
         return run_dir / f"{self.checkpoint_prefix}{iteration}{self.checkpoint_suffix}"
+
+    def checkpoint_complete(self, path: Path) -> bool:
+        """Whether `path` reads back whole. SB3's .zip and torch.save's .pt are zip containers,
+        whose checksums tell a truncated or damaged file; other formats are taken as they are
+        (a plugin with one overrides this)."""
+        try:
+            with zipfile.ZipFile(path) as archive:
+                return archive.testzip() is None
+        except (zipfile.BadZipFile, OSError, EOFError):
+            return path.suffix not in ZIP_SUFFIXES and path.is_file()
+
+    def latest_checkpoint(self, run_dir: Path) -> Checkpoint | None:
+        """The newest complete checkpoint in `run_dir`: a truncated or damaged newer file (copied
+        half-way, written by an older lab without renames) is passed over."""
+        for found in reversed(self.checkpoints(run_dir)):
+            if self.checkpoint_complete(found.path):
+                return found
+        return None
 
     def checkpoints(self, run_dir: Path) -> list[Checkpoint]:
         """Complete checkpoints in `run_dir`, oldest first (they are written by rename)."""

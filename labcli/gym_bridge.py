@@ -196,7 +196,8 @@ class GymVecEnv(gym.vector.VectorEnv):
 
     @staticmethod
     def _zero_stats() -> dict[str, float]:
-        return {"episodes": 0.0, "return": 0.0, "length": 0.0, "success": 0.0, TERMINATED: 0.0}
+        return {"episodes": 0.0, "return": 0.0, "length": 0.0, "success": 0.0, TERMINATED: 0.0,
+                "nonfinite": 0.0}
 
     # gymnasium API ---------------------------------------------------------------------------
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
@@ -209,14 +210,21 @@ class GymVecEnv(gym.vector.VectorEnv):
         else:
             self._stats = self._zero_stats()
         obs, _ = self._vec.reset(seed=seed, options=options)
+        self._last_obs = self._obs(obs)
         ended = torch.ones(self.num_envs, dtype=torch.bool, device=self.device) if mask is None \
             else torch.as_tensor(mask, device=self.device)
         self.episode_length.masked_fill_(ended, 0)
         self.episode_return.masked_fill_(ended, 0.0)
-        return self._obs(obs), {}
+        return self._last_obs, {}
+
+    def observations(self) -> torch.Tensor:
+        """The current observations: what the last step or reset returned."""
+        return self._last_obs
 
     def step(self, actions: torch.Tensor):
         actions = torch.as_tensor(actions, dtype=torch.float32, device=self.device)
+        # Counted, as LabVecEnv does: a policy acting with NaN stops training (see training.py).
+        self._stats["nonfinite"] += float((~torch.isfinite(actions)).any(dim=1).sum())
         scaled = self._low + (actions.nan_to_num(0.0).clamp(-1.0, 1.0) + 1.0) * 0.5 * self._span
         obs, reward, terminated, truncated, info = self._vec.step(scaled.cpu().numpy())
         done = terminated | truncated
@@ -241,7 +249,8 @@ class GymVecEnv(gym.vector.VectorEnv):
         self.episode_return.masked_fill_(done_t, 0.0)
         info = {"final_obs": self._obs(final), "_final_obs": done_t, "episode": episode,
                 "_episode": done_t, "terminations": terminated_t[:, None]}
-        return self._obs(obs), reward_t, terminated_t, truncated_t, info
+        self._last_obs = self._obs(obs)
+        return self._last_obs, reward_t, terminated_t, truncated_t, info
 
     def close(self, **kwargs: Any) -> None:
         self._vec.close()
@@ -264,9 +273,10 @@ class GymVecEnv(gym.vector.VectorEnv):
         rate only where the id has a reward threshold."""
         stats, self._stats = self._stats, self._zero_stats()
         count = stats["episodes"]
+        out = {metrics.NONFINITE_ACTIONS: stats["nonfinite"]} if stats["nonfinite"] else {}
         if count == 0:
-            return {}
-        out = {metrics.EPISODES: count, metrics.MEAN_RETURN: stats["return"] / count,
+            return out
+        out |= {metrics.EPISODES: count, metrics.MEAN_RETURN: stats["return"] / count,
                metrics.MEAN_LENGTH: stats["length"] / count,
                metrics.TERMINATION + TERMINATED: stats[TERMINATED] / count}
         if self.task_spec.reward_threshold is not None:
@@ -297,6 +307,11 @@ class GymVecEnv(gym.vector.VectorEnv):
             raise LabError(f"'{self.task_spec.gym_id}' is not a MuJoCo env lab can show in "
                            "MuJoCo's viewer", "use --video instead")
         return model, data
+
+    def get_state(self) -> None:
+        """Gymnasium envs have no general way to save a state: a resumed run starts new
+        episodes (the random generators are still restored)."""
+        return None
 
     def action_scaling(self) -> dict[str, Any]:
         """A policy action a in [-1, 1] is the control low + (a + 1) / 2 * (high - low)."""

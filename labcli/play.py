@@ -62,6 +62,7 @@ def load(*, run_dir: Path | None = None, checkpoint: Path | None = None,
     fw = plugins.get_framework(manifest["framework"])
     _, ckpt = find_checkpoint(str(checkpoint or run.dir), logs_dir, spec.name, fw)
     layers = [run.params(runs.ENV_PARAMS)]
+    config.check_saved(spec.config, "env", run.dir / runs.ENV_PARAMS, layers[0])
     if num_envs is not None:
         layers.append({"num_envs": num_envs})
     env_cfg = config.build(spec.config, "env", layers)

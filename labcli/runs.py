@@ -24,6 +24,11 @@ AGENT_PARAMS = "params/agent.yaml"
 COMMAND = "command.txt"
 EXPORTED = "exported"
 
+# A run's state, in summary.json and run.json. "running" is written when training starts; the
+# others when it ends. A run whose process died without saying so reads as "failed".
+RUNNING, FINISHED, INTERRUPTED, FAILED = "running", "finished", "interrupted", "failed"
+STATES = (RUNNING, FINISHED, INTERRUPTED, FAILED)
+
 
 def default_logs_dir() -> Path:
     return Path(os.environ.get("LAB_LOGS_DIR", "logs"))
@@ -88,7 +93,75 @@ class Run:
 
     def summary(self) -> dict[str, Any] | None:
         path = self.dir / SUMMARY
-        return read_json(path) if path.is_file() else None
+        if not path.is_file():
+            return None
+        try:
+            return read_json(path)
+        except json.JSONDecodeError as exc:
+            raise LabError(f"{path} is not valid JSON: {exc}") from exc
+
+
+def run_state(run: Run) -> str:
+    """"running", "finished", "interrupted" or "failed". A run recorded as running whose process
+    is gone (SIGKILL, out of memory, a reboot) is "failed": it never wrote its end."""
+    summary = run.summary() or {}
+    manifest = run.manifest()
+    state = summary.get("state") or manifest.get("state")
+    if state == RUNNING and not _alive(manifest):
+        return FAILED
+    return state if state in STATES else FAILED
+
+
+def process_identity() -> dict[str, Any]:
+    """What tells this process apart from any other, later, with the same pid: the pid, the
+    host, and the process's start time where the OS gives it."""
+    return {"pid": os.getpid(), "host": socket.gethostname(),
+            "pid_started": _process_start(os.getpid())}
+
+
+def _process_start(pid: int) -> int | None:
+    """Clock ticks since boot at which `pid` started (Linux), None elsewhere or when gone."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return None
+    # The command name (field 2) may hold spaces and parentheses: count from its closing one.
+    return int(stat[stat.rindex(")") + 2:].split()[19])
+
+
+def _alive(manifest: dict[str, Any]) -> bool:
+    pid = manifest.get("pid")
+    if not isinstance(pid, int):
+        return False
+    if manifest.get("host") not in (None, socket.gethostname()):
+        return True  # on another machine: cannot be checked from here, trust the record
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        pass  # exists, owned by another user
+    started = manifest.get("pid_started")
+    return started is None or _process_start(pid) in (started, None)
+
+
+def check_writable(path: Path) -> None:
+    """Fail now, not after start-up, where `path` (or the directories it would be made in)
+    cannot be written: by trying, since permission bits do not tell read-only mounts or
+    immutable files, and root ignores them."""
+    existing = path
+    while not existing.exists() and existing != existing.parent:
+        existing = existing.parent
+    if not existing.is_dir():
+        raise LabError(f"cannot write runs under {path}: {existing} is not a directory",
+                       "pass a writable --logs-dir")
+    try:
+        with tempfile.TemporaryFile(dir=existing):
+            pass
+    except OSError as exc:
+        raise LabError(f"cannot write runs under {path}: {existing} is not writable "
+                       f"({exc.strerror})", "pass a writable --logs-dir, or fix its permissions"
+                       ) from exc
 
 
 def create(logs_dir: Path, framework: str, task: str, name: str | None = None) -> Run:
@@ -99,8 +172,7 @@ def create(logs_dir: Path, framework: str, task: str, name: str | None = None) -
     except OSError as exc:
         raise LabError(f"cannot create the run directory under {parent}: {exc.strerror}",
                        "pass a writable --logs-dir") from exc
-    if not os.access(parent, os.W_OK):
-        raise LabError(f"{parent} is not writable", "pass a writable --logs-dir")
+    check_writable(parent)
     stamp = datetime.now().strftime("%Y-%m-%d_%H-%M-%S")
     base = f"{stamp}_{name}" if name else stamp
     for n in range(1000):
@@ -139,11 +211,6 @@ def open_run(path: Path) -> Run:
 
 
 # The runs table (`lab runs`) ------------------------------------------------------------------
-RUNNING, CRASHED = "running", "crashed"
-# A process that started this long after its run's recorded start is not the run's: its pid
-# was reused after the run died (the start is recorded to the second).
-PID_REUSE_SLACK_S = 5.0
-
 
 @dataclass
 class RunRow:
@@ -172,51 +239,6 @@ def run_name(run_dir: Path) -> str:
     return match.group(1) if match else run_dir.name
 
 
-def state_of(manifest: dict[str, Any], summary: dict[str, Any] | None) -> str:
-    """The summary's state once training ended; while the manifest says "running", the run
-    is running only if its process is alive on this host, else it died without a summary:
-    "crashed" (killed, out of memory, power lost)."""
-    state = (summary or manifest).get("state", RUNNING)
-    if state != RUNNING:
-        return state
-    alive = (manifest.get("host") == socket.gethostname()
-             and _process_alive(manifest.get("pid"), manifest.get("started")))
-    return RUNNING if alive else CRASHED
-
-
-def _process_alive(pid: Any, started: str | None) -> bool:
-    if not isinstance(pid, int) or pid <= 0:
-        return False
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:  # alive, another user's
-        pass
-    began = _process_start(pid)
-    if began is None or started is None:
-        return True
-    try:
-        recorded = datetime.fromisoformat(started).timestamp()
-    except ValueError:
-        return True
-    return began <= recorded + PID_REUSE_SLACK_S
-
-
-def _process_start(pid: int) -> float | None:
-    """When process `pid` started (Unix time), from Linux's /proc; None elsewhere."""
-    try:
-        stat = Path(f"/proc/{pid}/stat").read_text()
-        boot = next(line for line in Path("/proc/stat").read_text().splitlines()
-                    if line.startswith("btime "))
-    except (OSError, StopIteration):
-        return None
-    # Field 22 (start time in clock ticks after boot) counted after the ")" that closes the
-    # command name, which may itself hold spaces.
-    ticks = int(stat.rsplit(")", 1)[1].split()[19])
-    return int(boot.split()[1]) + ticks / os.sysconf("SC_CLK_TCK")
-
-
 def table(logs_dir: Path, task: str | None = None, framework: str | None = None,
           state: str | None = None) -> list[RunRow]:
     """Every run under `logs_dir`, newest first, filtered by task, framework and state."""
@@ -229,7 +251,7 @@ def table(logs_dir: Path, task: str | None = None, framework: str | None = None,
             continue  # a run dir being written or damaged is not a row
         row = RunRow(dir=run.dir, task=manifest.get("task", "?"),
                      framework=manifest.get("framework", "?"),
-                     started=manifest.get("started", ""), state=state_of(manifest, summary))
+                     started=manifest.get("started", ""), state=run_state(run))
         if summary is not None:
             row.steps, row.wall_time_s = summary.get("steps"), summary.get("wall_time_s")
             row.mean_return, row.success_rate = (summary.get("mean_return"),

@@ -22,11 +22,14 @@ if TYPE_CHECKING:
 class TaskConfig(BaseModel):
     """Settings every task has; a task subclasses it to add its own (reset ranges, bounds...)."""
 
-    model_config = ConfigDict(extra="forbid", validate_assignment=True)
+    # NaN and inf are never meant: they would only surface later as a diverged run.
+    model_config = ConfigDict(extra="forbid", validate_assignment=True, allow_inf_nan=False)
 
-    num_envs: int = Field(64, gt=0, description="parallel environments")
-    episode_length_s: float = Field(5.0, gt=0, description="time-out, in seconds")
-    decimation: int = Field(2, gt=0, description="physics steps per env step")
+    # The upper bounds are far beyond any use; past them a typo would exhaust memory or overflow
+    # the step count instead of failing at once.
+    num_envs: int = Field(64, gt=0, le=2**20, description="parallel environments")
+    episode_length_s: float = Field(5.0, gt=0, le=1e6, description="time-out, in seconds")
+    decimation: int = Field(2, gt=0, le=1000, description="physics steps per env step")
     sim_dt: float | None = Field(None, gt=0, description="physics step; None keeps the MJCF's")
     action_scale: float = Field(1.0, description="policy action in [-1, 1] times this is ctrl")
     reward_weights: dict[str, float] = Field(default_factory=dict)

@@ -7,9 +7,12 @@ size and fails with an AssertionError that names the framework and what it got w
 
 from __future__ import annotations
 
+import contextlib
 import io
 import json
-from collections.abc import Callable, Sequence
+import os
+import signal
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -29,6 +32,9 @@ NUM_ENVS = 4
 # Cartpole steps 0.02 s: 0.1 s episodes time out after 5 steps, so every iteration ends some.
 SHORT_EPISODE = "env.episode_length_s=0.1"
 EXPORT_TOLERANCE = 1e-5
+# Resumed and unbroken runs do the same float operations in the same order: they agree exactly
+# on the CPU; the tolerance only leaves room for a library that reorders a reduction.
+RESUME_TOLERANCE = 1e-6
 
 
 @dataclass
@@ -215,14 +221,26 @@ def check_policy_roundtrip(name: str, tmp_path: Path, overrides: Sequence[str] =
     return policy
 
 
-def check_resume(name: str, tmp_path: Path, overrides: Sequence[str] = ()) -> None:
+def _actions(name: str, checkpoint: Path, obs: torch.Tensor) -> torch.Tensor:
+    env = make_env()
+    try:
+        policy = plugins.get_framework(name).load_policy(checkpoint, env)
+    finally:
+        env.close()
+    with torch.no_grad():
+        return policy(obs)
+
+
+def check_resume(name: str, tmp_path: Path, overrides: Sequence[str] = ()) -> float:
     """`checkpoint="latest"` continues the same run: iterations and steps go on from the
-    checkpoint, and the new checkpoints land in the same run dir."""
+    checkpoint, the new checkpoints land in the same run dir, and 2 + 2 iterations end with the
+    policy of 4 in one go (same seed, CPU): optimizer, normalizer, learning rate, episodes in
+    flight and random generators all carried over. Returns the largest action difference."""
     fw = plugins.get_framework(name)
-    first = train_small(name, tmp_path, 2, [*overrides, SHORT_EPISODE])
+    sets = [*overrides, SHORT_EPISODE, "agent.save_interval=2"]
+    first = train_small(name, tmp_path / "resumed", 2, sets)
     per_iteration = first.summary["steps"] // 2
-    second = train_small(name, tmp_path, 4, [*overrides, SHORT_EPISODE],
-                    checkpoint=training.LATEST)
+    second = train_small(name, tmp_path / "resumed", 4, sets, checkpoint=training.LATEST)
     assert second.run.dir == first.run.dir, f"{name}: resume made a new run dir"
     assert second.summary["iterations"] == 4, (
         f"{name}: resumed run ended at iteration {second.summary['iterations']}, not 4")
@@ -230,9 +248,68 @@ def check_resume(name: str, tmp_path: Path, overrides: Sequence[str] = ()) -> No
         f"{name}: resumed run counts {second.summary['steps']} steps, not "
         f"{4 * per_iteration} (the step count must continue from the checkpoint)")
     found = [c.iteration for c in fw.checkpoints(first.run.dir)]
-    assert found[-1] == 4 and 2 in found, f"{name}: checkpoints after resume at {found}"
+    assert found[-1] == 4 and 2 in found, f"{name}: checkpoints at iterations {found}"
     manifest = json.loads((first.run.dir / runs.MANIFEST).read_text())
     assert manifest.get("resumed_from") == fw.checkpoint_path(first.run.dir, 2).name
+    once = train_small(name, tmp_path / "once", 4, sets)
+    # Stopped by SIGINT half-way through the fourth rollout (iteration 3, not due for a
+    # checkpoint, is saved by the stop), then resumed: the partial rollout is dropped as if it
+    # never happened.
+    steps_per_env = per_iteration // NUM_ENVS
+    with _sigint_at_env_step(3 * steps_per_env + steps_per_env // 2):
+        stopped = train_small(name, tmp_path / "interrupted", 4, sets)
+    assert stopped.summary["state"] == runs.INTERRUPTED and stopped.summary["iterations"] == 3, (
+        f"{name}: a stop in the fourth rollout gave {stopped.summary}")
+    after_stop = train_small(name, tmp_path / "interrupted", 4, sets, checkpoint=training.LATEST)
+    obs = _observations()
+    unbroken = _actions(name, fw.checkpoint_path(once.run.dir, 4), obs)
+    diff = 0.0
+    for how, run in (("2 + 2 resumed iterations", second), ("a stop mid-rollout", after_stop)):
+        resumed = _actions(name, fw.checkpoint_path(run.run.dir, 4), obs)
+        diff = max(diff, (resumed - unbroken).abs().max().item())
+        assert diff <= RESUME_TOLERANCE, (
+            f"{name}: after {how}, the policy acts differently from 4 iterations in one go (max "
+            f"action difference {diff:.2e}): some training state was not carried over")
+    return diff
+
+
+@contextlib.contextmanager
+def _sigint_at_env_step(n: int) -> Iterator[None]:
+    """Sends this process SIGINT during the `n`-th env step from now, as Ctrl-C would."""
+    original = LabVecEnv.step
+    calls = 0
+
+    def step(self: LabVecEnv, actions: Any) -> Any:
+        nonlocal calls
+        calls += 1
+        if calls == n:
+            os.kill(os.getpid(), signal.SIGINT)
+        return original(self, actions)
+
+    LabVecEnv.step = step
+    try:
+        yield
+    finally:
+        LabVecEnv.step = original
+
+
+def check_determinism(name: str, tmp_path: Path, overrides: Sequence[str] = (),
+                      iterations: int = 2) -> list[float]:
+    """The same seed on the CPU gives the same mean returns and policy; another seed other
+    ones. Returns the mean returns of seed 0."""
+    fw = plugins.get_framework(name)
+    sets = [*overrides, SHORT_EPISODE]
+    outcomes = [train_small(name, tmp_path / label, iterations, sets, seed=seed)
+                for label, seed in (("a", 0), ("b", 0), ("c", 1))]
+    returns = [[v for _, v in sorted(read_scalars(o.run.dir)[metrics.MEAN_RETURN])]
+               for o in outcomes]
+    obs = _observations()
+    actions = [_actions(name, fw.checkpoints(o.run.dir)[-1].path, obs) for o in outcomes]
+    assert returns[0] == returns[1] and torch.equal(actions[0], actions[1]), (
+        f"{name}: two runs with seed 0 differ: returns {returns[0]} and {returns[1]}")
+    assert returns[0] != returns[2] and not torch.equal(actions[0], actions[2]), (
+        f"{name}: seeds 0 and 1 gave the same returns {returns[0]}: the seed is not used")
+    return returns[0]
 
 
 def check_export(name: str, tmp_path: Path, overrides: Sequence[str] = ()) -> float:
@@ -288,6 +365,7 @@ def check_framework(name: str, tmp_path: Path, small_overrides: Sequence[str] = 
     check_training_outputs(name, tmp_path / "outputs", small_overrides)
     check_policy_roundtrip(name, tmp_path / "policy", small_overrides, normalized)
     check_resume(name, tmp_path / "resume", small_overrides)
+    check_determinism(name, tmp_path / "determinism", small_overrides)
     check_export(name, tmp_path / "export", small_overrides)
     if improve_overrides is not None:
         check_training_improves(name, tmp_path / "improve", improve_overrides)

@@ -100,7 +100,7 @@ BAD = {
     "missing checkpoint": (["train", "--task", "cartpole", "--framework", "sb3", "--checkpoint",
                             "nowhere/model_5.zip"], ["does not exist"]),
     "no runs to resume": (["train", "--task", "cartpole", "--framework", "sb3", "--checkpoint",
-                           "latest"], ["no checkpoint"]),
+                           "latest"], ["no complete checkpoint"]),
     "play with no runs": (["play", "--last"], ["no runs found"]),
     "export with no runs": (["export", "onnx"], ["no runs found"]),
     "play a missing run": (["play", "--run", "nowhere"], ["does not exist"]),

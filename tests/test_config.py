@@ -165,12 +165,13 @@ def test_an_ill_typed_value_names_the_key_and_the_expected_type(item, expected):
 
 
 @given(st.integers())
-def test_num_envs_is_a_positive_int(n):
-    if n > 0:
+def test_num_envs_is_a_positive_int_up_to_2_to_the_20(n):
+    if 0 < n <= 2**20:
         env, _ = resolve(overrides=[f"env.num_envs={n}"])
         assert env.num_envs == n
     else:
-        with pytest.raises(LabError, match=r"bad value for 'env.num_envs': .*greater than 0"):
+        bound = "greater than 0" if n <= 0 else "less than or equal to 1048576"
+        with pytest.raises(LabError, match=rf"bad value for 'env.num_envs': .*{bound}"):
             resolve(overrides=[f"env.num_envs={n}"])
 
 

@@ -10,7 +10,7 @@ import io
 import shutil
 import subprocess
 import sys
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -204,23 +204,6 @@ def test_docs_show_the_example_files_as_they_are(path):
 
 
 # Plugins registered into the manager for one test ----------------------------------------------
-@pytest.fixture
-def register_plugin() -> Iterator[Callable[[object, str], None]]:
-    """Registers plugin objects (a class instance or a module) under a name, then removes them."""
-    names: list[str] = []
-
-    def register(plugin: object, name: str) -> None:
-        plugins.pm.register(plugin, name=name)
-        names.append(name)
-        plugins.reload()
-
-    yield register
-    for name in names:
-        if plugins.pm.has_plugin(name):
-            plugins.pm.unregister(name=name)
-    plugins.reload()
-
-
 def renamed_cartpole(name: str):
     return dataclasses.replace(plugins.get_task("cartpole"), name=name)
 
@@ -272,6 +255,16 @@ def test_a_hook_that_raises_is_a_failure_and_the_rest_keeps_working(register_plu
                                           "RuntimeError: robot.xml not found")]
     assert plugins.get_wrapper("robot.noise") is NOISE  # its other hook still registered
     assert "cartpole" in reg.names("task") and "sb3" in reg.names("framework")
+
+
+def test_training_warns_of_a_plugin_that_failed(register_plugin, tmp_path):
+    register_plugin(Broken(), "robot")
+    out = io.StringIO()
+    training.train("cartpole", "sb3", num_envs=2, max_iterations=1, logs_dir=tmp_path,
+                   overrides=["agent.n_steps=4", "agent.batch_size=8"],
+                   console=Console(file=out, width=300))
+    assert (f"warning: plugin 'robot' (robot {NOT_INSTALLED}) failed to load: RuntimeError: "
+            "robot.xml not found") in out.getvalue()
 
 
 def test_a_task_from_a_failed_plugin_is_a_lab_error_naming_the_failure(register_plugin):

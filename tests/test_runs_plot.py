@@ -8,7 +8,7 @@ import os
 import socket
 import subprocess
 import sys
-from datetime import datetime, timedelta
+from datetime import datetime
 from pathlib import Path
 
 import matplotlib.image
@@ -63,20 +63,17 @@ def test_run_name_is_what_follows_the_time_stamp():
     assert runs.run_name(Path("2026-11-23_13-38-38-1")) == "-1"  # second run of that second
 
 
-def test_running_means_a_live_process_of_this_host_else_crashed(tmp_path):
+def test_the_table_states_come_from_run_state(tmp_path):
+    """Each row's state is `runs.run_state`'s (its cases are tested in test_runs.py): a live
+    process of this host runs, a dead one failed, an ended run says how it ended."""
     dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"],
                           capture_output=True, text=True, check=True)
-    old = (datetime.now() - timedelta(days=400)).isoformat(timespec="seconds")
-    fake_run(tmp_path, "alive")
+    fake_run(tmp_path, "alive", **runs.process_identity())
     fake_run(tmp_path, "dead_pid", pid=int(dead.stdout))
-    fake_run(tmp_path, "other_host", host="elsewhere.invalid")
-    # This process started long after that run: its pid was reused, the run died.
-    fake_run(tmp_path, "reused_pid", started=old)
     interrupted = fake_run(tmp_path, "interrupted")
     runs.write_json(interrupted / runs.SUMMARY, {"state": "interrupted", "steps": 64})
     states = {row.dir.name: row.state for row in runs.table(tmp_path)}
-    assert states == {"alive": "running", "dead_pid": "crashed", "other_host": "crashed",
-                      "reused_pid": "crashed", "interrupted": "interrupted"}
+    assert states == {"alive": "running", "dead_pid": "failed", "interrupted": "interrupted"}
     (running,) = runs.table(tmp_path, state="running")
     assert running.steps is None and running.wall_time_s is not None
 

@@ -141,6 +141,7 @@ class LabRunner(OnPolicyRunner):
         self.info = {"observation_size": env.get_observations()[OBS_GROUP].shape[1],
                      "action_size": env.num_actions, "actor": self.cfg["actor"]}
         self.logger = _LabLogger(ctx, self.write_checkpoint, cfg.num_steps_per_env * env.num_envs)
+        ctx.watch(self.alg.actor, self.alg.critic)
 
     def write_checkpoint(self, path: Path) -> None:
         # "iter" is the number of iterations done, so that learn() after load() goes on with
@@ -176,6 +177,7 @@ class RslRlFramework(Framework):
             runner = LabRunner(env, cfg, ctx)
             if ctx.resume is not None:
                 runner.resume(ctx.resume.path)
+            ctx.restore_rng()
             with contextlib.suppress(_Stop):  # raised once lab's checkpoint logic is done
                 runner.learn(cfg.max_iterations - ctx.start_iteration)
             ctx.save(runner.write_checkpoint)  # no-op unless stopped mid-rollout

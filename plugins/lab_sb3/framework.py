@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import copy
 import os
 import pickle
 import zipfile
@@ -53,11 +54,22 @@ class Sb3PPOConfig(AgentConfig):
 class _LabCallback(BaseCallback):
     """Reports each finished PPO iteration to lab and stops on Ctrl-C at the next env step."""
 
-    def __init__(self, ctx: TrainContext, save: Any):
+    def __init__(self, ctx: TrainContext, save: Any, normalizer: VecNormalize | None = None):
         super().__init__()
-        self.ctx, self.save = ctx, save
+        self.ctx, self.save, self.normalizer = ctx, save, normalizer
         self.iteration = ctx.start_iteration
         self.started = False
+        self.boundary_stats: tuple[Any, Any] | None = None
+
+    def _on_training_start(self) -> None:
+        # SB3 has just reset the env (on resume, to the saved episodes). Its VecNormalize counted
+        # that reset's observations once more: put back the saved statistics and normalize the
+        # first observations with them, as the run that never stopped did.
+        if self.normalizer is not None and self.ctx.resume is not None:
+            saved = _load_normalizer(Sb3Framework.normalizer_path(self.ctx.resume.path))
+            self.normalizer.obs_rms, self.normalizer.ret_rms = saved.obs_rms, saved.ret_rms
+            self.model._last_obs = self.normalizer.normalize_obs(self.normalizer.old_obs)
+        self.ctx.restore_rng()
 
     def _on_rollout_start(self) -> None:
         # SB3 has no hook after the update; the next rollout's start is one.
@@ -66,6 +78,10 @@ class _LabCallback(BaseCallback):
         self.started = True
 
     def end_iteration(self) -> None:
+        if self.normalizer is not None:
+            # VecNormalize updates its statistics at every step: a stop mid-rollout must not
+            # save the dropped rollout's observations into the last complete iteration's.
+            self.boundary_stats = copy.deepcopy((self.normalizer.obs_rms, self.normalizer.ret_rms))
         self.iteration += 1
         self.ctx.end_iteration(self.iteration, self.model.num_timesteps, self.save)
 
@@ -99,9 +115,6 @@ class Sb3Framework(Framework):
         cfg: Sb3PPOConfig = ctx.cfg  # type: ignore[assignment]
         if ctx.resume is not None:
             model = PPO.load(ctx.resume.path, env=env, device=ctx.device)
-            if isinstance(env, VecNormalize):
-                saved = _load_normalizer(self.normalizer_path(ctx.resume.path))
-                env.obs_rms, env.ret_rms = saved.obs_rms, saved.ret_rms
         else:
             model = PPO(
                 "MlpPolicy", env, n_steps=cfg.n_steps, batch_size=cfg.batch_size,
@@ -115,14 +128,24 @@ class Sb3Framework(Framework):
         model.set_logger(configure(str(ctx.run_dir), ["tensorboard"]))
 
         def save(path: Path) -> None:
+            # After a stop mid-rollout SB3 has counted the dropped rollout's steps; the
+            # checkpoint is that of the last complete iteration, whose steps lab counted.
+            model.num_timesteps = ctx.steps
             if isinstance(env, VecNormalize):
-                target = self.normalizer_path(self.checkpoint_path(ctx.run_dir, ctx.iteration))
+                target = self.normalizer_path(path)
                 tmp = target.with_name(f".tmp_{target.name}")
-                env.save(tmp)
+                live = env.obs_rms, env.ret_rms
+                if callback.boundary_stats is not None:
+                    env.obs_rms, env.ret_rms = callback.boundary_stats
+                try:
+                    env.save(tmp)
+                finally:
+                    env.obs_rms, env.ret_rms = live
                 os.replace(tmp, target)
             model.save(path)
 
-        callback = _LabCallback(ctx, save)
+        callback = _LabCallback(ctx, save, env if isinstance(env, VecNormalize) else None)
+        ctx.watch(model.policy)
         remaining = cfg.max_iterations - ctx.start_iteration
         with one_torch_thread(ctx.device):
             model.learn(total_timesteps=remaining * cfg.n_steps * env.num_envs,

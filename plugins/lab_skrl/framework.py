@@ -179,8 +179,10 @@ class SkrlFramework(Framework):
             torch.save({**modules, META: {**meta, "steps": steps}}, path)
 
         agent.enable_training_mode(True)
+        ctx.watch(agent.policy, agent.value)
         with one_torch_thread(ctx.device):
             obs, _ = env.reset()
+            ctx.restore_rng()
             for iteration in range(ctx.start_iteration + 1, cfg.max_iterations + 1):
                 obs, complete = _collect_and_update(agent, env, obs, ctx, iteration)
                 if not complete:

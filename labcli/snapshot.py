@@ -1,0 +1,72 @@
+"""A snapshot of what a resumed run needs besides the framework's checkpoint to go on exactly as
+a run that never stopped: the env's episodes in flight and the process's random generators.
+Saved as `state_<iteration>.pt` beside the checkpoint of that iteration."""
+
+from __future__ import annotations
+
+import os
+import pickle
+import random
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from labcli.errors import LabError
+
+PREFIX = "state_"
+
+
+def seed_all(seed: int) -> None:
+    """Seed every generator a learning library may draw from: Python's, NumPy's (SB3 shuffles
+    its minibatches with it) and torch's (action sampling, network initialization)."""
+    random.seed(seed)
+    np.random.seed(seed)
+    torch.manual_seed(seed)
+
+
+def rng_state() -> dict[str, Any]:
+    """The process-wide generators' states, as tensors and plain numbers (no pickled objects:
+    state files load with `weights_only=True`)."""
+    kind, keys, pos, has_gauss, gauss = np.random.get_state()
+    version, internal, gauss_next = random.getstate()
+    return {
+        "torch": torch.get_rng_state(),
+        "numpy": {"kind": kind, "keys": torch.from_numpy(keys.astype(np.int64)), "pos": pos,
+                  "has_gauss": has_gauss, "gauss": gauss},
+        "python": {"version": version, "internal": list(internal), "gauss_next": gauss_next},
+    }
+
+
+def set_rng_state(state: dict[str, Any]) -> None:
+    torch.set_rng_state(state["torch"])
+    n = state["numpy"]
+    np.random.set_state((n["kind"], n["keys"].numpy().astype(np.uint32), n["pos"],
+                         n["has_gauss"], n["gauss"]))
+    p = state["python"]
+    random.setstate((p["version"], tuple(p["internal"]), p["gauss_next"]))
+
+
+def path_of(run_dir: Path, iteration: int) -> Path:
+    return run_dir / f"{PREFIX}{iteration}.pt"
+
+
+def save(path: Path, state: dict[str, Any]) -> None:
+    """Through a temporary file and a rename, like checkpoints."""
+    tmp = path.with_name(f".tmp_{path.name}")
+    torch.save(state, tmp)
+    os.replace(tmp, path)
+
+
+def load(path: Path) -> dict[str, Any] | None:
+    """The saved state, None when the checkpoint has none (written before lab saved it)."""
+    if not path.is_file():
+        return None
+    try:
+        return torch.load(path, map_location="cpu", weights_only=True)
+    except (OSError, RuntimeError, EOFError, pickle.UnpicklingError) as exc:
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise LabError(f"resume state {path} cannot be read: {first}",
+                       "delete it to resume without it (new episodes, new random numbers)"
+                       ) from exc

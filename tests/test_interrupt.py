@@ -1,0 +1,237 @@
+"""Interruption: SIGINT/SIGTERM at any point of `lab train` (real processes, real signals), a
+signal during a framework's update, SIGKILL while a checkpoint is written, and `latest` never
+picking an incomplete checkpoint."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import pytest
+import torch
+
+from labcli import plugins, runs, testing, training
+from labcli.errors import LabError
+
+SB3_SMALL = ["--set", "agent.n_steps=8", "--set", "agent.batch_size=16", "--set",
+             "agent.n_epochs=1", "--set", "agent.net_arch=[16]"]
+# Iterations take milliseconds at this size: far more than a test waits for.
+ENDLESS = ["--num-envs", "4", "--max-iterations", "1000000", "--set", "agent.save_interval=1"]
+STOP_WITHIN_S = 10.0
+
+
+def start(logs: Path, *args: str) -> subprocess.Popen:
+    """`lab train` as a user starts it: its own process, the console script's entry point."""
+    return subprocess.Popen(
+        [sys.executable, "-m", "labcli", "train", "--task", "cartpole", "--framework", "sb3",
+         *SB3_SMALL, *args], env={**os.environ, "LAB_LOGS_DIR": str(logs)},
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+def wait_for(condition, timeout: float = 60.0) -> None:
+    deadline = time.monotonic() + timeout
+    while not condition():
+        assert time.monotonic() < deadline, "timed out waiting"
+        time.sleep(0.05)
+
+
+def run_dirs(logs: Path) -> list[Path]:
+    return sorted(p.parent for p in logs.glob(f"sb3/cartpole/*/{runs.MANIFEST}"))
+
+
+def newest_iteration(run_dir: Path) -> int:
+    found = plugins.get_framework("sb3").checkpoints(run_dir)
+    return found[-1].iteration if found else 0
+
+
+def stop(proc: subprocess.Popen, signum: int) -> tuple[int, str, float]:
+    t0 = time.monotonic()
+    proc.send_signal(signum)
+    _, err = proc.communicate(timeout=60)
+    return proc.returncode, err, time.monotonic() - t0
+
+
+def assert_interrupted_with_a_loadable_checkpoint(run_dir: Path) -> dict:
+    summary = json.loads((run_dir / runs.SUMMARY).read_text())
+    assert summary["state"] == runs.INTERRUPTED
+    assert json.loads((run_dir / runs.MANIFEST).read_text())["state"] == runs.INTERRUPTED
+    assert runs.run_state(runs.Run(run_dir)) == runs.INTERRUPTED
+    fw = plugins.get_framework("sb3")
+    checkpoint = fw.checkpoint_path(run_dir, summary["iterations"])
+    assert summary["checkpoint"] == checkpoint.name and checkpoint.is_file()
+    assert fw.latest_checkpoint(run_dir).path == checkpoint
+    assert summary["steps"] == summary["iterations"] * 4 * 8  # 4 envs x 8 steps
+    env = testing.make_env()
+    try:
+        fw.load_policy(checkpoint, env)
+    finally:
+        env.close()
+    assert not list(run_dir.glob(".tmp_*"))
+    return summary
+
+
+def test_sigint_and_sigterm_mid_training_of_two_concurrent_runs(tmp_path):
+    """Two runs started together get their own dirs and show as running with their pids; each
+    stops within seconds of its signal with a checkpoint, a summary and 128 + the signal."""
+    logs = tmp_path / "logs"
+    procs = [start(logs, *ENDLESS, "--run-name", "same") for _ in range(2)]
+    try:
+        wait_for(lambda: len(run_dirs(logs)) == 2
+                 and all(newest_iteration(d) >= 2 for d in run_dirs(logs)))
+        by_pid = {json.loads((d / runs.MANIFEST).read_text())["pid"]: d for d in run_dirs(logs)}
+        assert set(by_pid) == {p.pid for p in procs}  # distinct dirs, one per process
+        for d in by_pid.values():
+            assert runs.run_state(runs.Run(d)) == runs.RUNNING
+        results = [stop(proc, signum) for proc, signum in zip(
+            procs, (signal.SIGINT, signal.SIGTERM), strict=True)]
+    finally:
+        for proc in procs:
+            proc.kill()
+    for proc, (code, err, took), expected in zip(procs, results, (130, 143), strict=True):
+        assert code == expected, err
+        assert took < STOP_WITHIN_S and "Traceback" not in err
+        summary = assert_interrupted_with_a_loadable_checkpoint(by_pid[proc.pid])
+        assert summary["iterations"] >= 2
+
+
+def test_a_signal_during_start_up_leaves_a_consistent_run(tmp_path):
+    """Once the run dir exists (the env and the agent are still being built), a signal still
+    ends with a loadable checkpoint (of iteration 0) and an 'interrupted' summary."""
+    logs = tmp_path / "logs"
+    proc = start(logs, *ENDLESS)
+    try:
+        wait_for(lambda: bool(run_dirs(logs)))
+        code, err, took = stop(proc, signal.SIGINT)
+    finally:
+        proc.kill()
+    assert code == 130 and took < STOP_WITHIN_S and "Traceback" not in err, err
+    summary = assert_interrupted_with_a_loadable_checkpoint(run_dirs(logs)[0])
+    assert summary["iterations"] <= 1
+
+
+def test_a_signal_while_lab_imports_is_one_line_and_writes_nothing(tmp_path):
+    logs = tmp_path / "logs"
+    proc = start(logs, *ENDLESS)
+    try:
+        time.sleep(0.5)  # torch and the learning libraries take seconds to import
+        assert not logs.exists()
+        code, err, _ = stop(proc, signal.SIGTERM)
+    finally:
+        proc.kill()
+    assert code == 143, err
+    assert err.count("\n") == 1 and "SIGTERM" in err and "nothing was written" in err
+    assert not logs.exists()
+
+
+# A stop asked during the update: the update finishes, that iteration is checkpointed, no other
+# starts. Each library's update function, by module and name.
+UPDATES = {
+    "sb3": ("stable_baselines3.ppo.ppo", "PPO", "train"),
+    "rsl_rl": ("rsl_rl.algorithms.ppo", "PPO", "update"),
+    "skrl": ("skrl.agents.torch.ppo.ppo", "PPO", "update"),
+}
+SMALL = {
+    "sb3": ["agent.n_steps=8", "agent.batch_size=16", "agent.n_epochs=2", "agent.net_arch=[16]"],
+    "rsl_rl": ["agent.num_steps_per_env=8", "agent.num_learning_epochs=2",
+               "agent.num_mini_batches=2", "agent.actor_hidden_dims=[16]",
+               "agent.critic_hidden_dims=[16]"],
+    "skrl": ["agent.rollouts=8", "agent.learning_epochs=2", "agent.mini_batches=2",
+             "agent.hidden_sizes=[16]"],
+}
+
+
+@pytest.mark.parametrize("name", list(UPDATES))
+def test_sigint_during_the_update_checkpoints_that_iteration(name, tmp_path, monkeypatch):
+    module, cls, method = UPDATES[name]
+    owner = getattr(__import__(module, fromlist=[cls]), cls)
+    original = getattr(owner, method)
+    updates = 0
+
+    def update(self, *args, **kwargs):
+        nonlocal updates
+        updates += 1
+        if updates == 2:
+            os.kill(os.getpid(), signal.SIGINT)  # arrives inside the library's update
+        return original(self, *args, **kwargs)
+
+    monkeypatch.setattr(owner, method, update)
+    outcome = testing.train_small(name, tmp_path, 50, SMALL[name])
+    assert updates == 2
+    assert outcome.summary["state"] == runs.INTERRUPTED and outcome.summary["iterations"] == 2
+    assert outcome.summary["signal"] == signal.SIGINT
+    fw = plugins.get_framework(name)
+    assert [c.iteration for c in fw.checkpoints(outcome.run.dir)] == [2]
+    resumed = testing.train_small(name, tmp_path, 3, SMALL[name], checkpoint=training.LATEST)
+    assert resumed.run.dir == outcome.run.dir and resumed.summary["state"] == runs.FINISHED
+
+
+# SIGKILL mid-write: the child writes its next checkpoint slowly, and is killed half-way.
+KILLED_MID_SAVE = textwrap.dedent("""
+    import io, sys, time
+    from pathlib import Path
+    from rich.console import Console
+    from lab_sb3.framework import PPO
+    from labcli import training
+
+    original = PPO.save
+    def slow_save(self, path, *args, **kwargs):
+        if Path(path).name == ".tmp_model_2.zip":
+            Path(path).write_bytes(b"PK half a checkpoint")
+            print("writing", flush=True)
+            time.sleep(60)
+        return original(self, path, *args, **kwargs)
+    PPO.save = slow_save
+    training.train("cartpole", "sb3", num_envs=4, max_iterations=5, logs_dir=Path(sys.argv[1]),
+                   overrides=["agent.n_steps=8", "agent.batch_size=16", "agent.n_epochs=1",
+                              "agent.save_interval=1"], console=Console(file=io.StringIO()))
+""")
+
+
+def test_sigkill_while_a_checkpoint_is_written_leaves_the_previous_one(tmp_path):
+    logs = tmp_path / "logs"
+    proc = subprocess.Popen([sys.executable, "-c", KILLED_MID_SAVE, str(logs)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout.readline().strip() == "writing", proc.stderr.read()
+        proc.kill()
+        proc.wait(timeout=30)
+    finally:
+        proc.kill()
+    (run_dir,) = run_dirs(logs)
+    fw = plugins.get_framework("sb3")
+    assert not fw.checkpoint_path(run_dir, 2).exists()  # only its temporary file was written
+    assert list(run_dir.glob(".tmp_model_2.zip"))
+    run, found = training.find_checkpoint(training.LATEST, logs, "cartpole", fw)
+    assert run.dir == run_dir and found.iteration == 1
+    assert runs.run_state(run) == runs.FAILED  # recorded as running, its process is gone
+    resumed = testing.train_small("sb3", logs, 2, ["agent.n_steps=8", "agent.batch_size=16",
+                                                   "agent.n_epochs=1"],
+                                  checkpoint=training.LATEST)
+    assert resumed.summary["state"] == runs.FINISHED and resumed.summary["iterations"] == 2
+
+
+def test_latest_passes_over_stray_and_truncated_checkpoints(tmp_path):
+    fw = plugins.get_framework("rsl_rl")
+    outcome = testing.train_small("rsl_rl", tmp_path, 2, [*SMALL["rsl_rl"],
+                                                         "agent.save_interval=1"])
+    run_dir = outcome.run.dir
+    complete = fw.checkpoint_path(run_dir, 2)
+    data = complete.read_bytes()
+    fw.checkpoint_path(run_dir, 3).write_bytes(data[: len(data) // 2])  # truncated
+    (run_dir / ".tmp_model_4.pt").write_bytes(data)  # a write that never got renamed
+    for value in (training.LATEST, str(run_dir)):
+        _, found = training.find_checkpoint(value, tmp_path, "cartpole", fw)
+        assert found.path == complete
+    with pytest.raises(LabError) as err:
+        training.find_checkpoint(str(fw.checkpoint_path(run_dir, 3)), tmp_path, "cartpole", fw)
+    assert "model_3.pt" in str(err.value) and "incomplete" in str(err.value)
+    resumed = testing.train_small("rsl_rl", tmp_path, 3, SMALL["rsl_rl"],
+                                  checkpoint=training.LATEST)
+    assert resumed.summary["state"] == runs.FINISHED
+    assert torch.load(fw.checkpoint_path(run_dir, 3), weights_only=True)["iter"] == 3

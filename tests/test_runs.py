@@ -1,0 +1,79 @@
+"""Run dirs: distinct names under a frozen clock, and the state a runs table shows."""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+import subprocess
+import sys
+from datetime import datetime
+
+import yaml
+from rich.console import Console
+
+from labcli import metrics, runs, testing, training
+from labcli.plot import read_scalars
+
+
+class FrozenClock(datetime):
+    @classmethod
+    def now(cls, tz=None):
+        return cls(2026, 1, 2, 3, 4, 5)
+
+
+def test_runs_started_in_the_same_second_get_distinct_dirs(tmp_path, monkeypatch):
+    monkeypatch.setattr(runs, "datetime", FrozenClock)
+    made = [runs.create(tmp_path, "sb3", "cartpole", "same").dir for _ in range(3)]
+    assert [d.name for d in made] == ["2026-01-02_03-04-05_same", "2026-01-02_03-04-05_same-1",
+                                      "2026-01-02_03-04-05_same-2"]
+    assert all(d.is_dir() for d in made)
+
+
+def write_run(tmp_path, manifest: dict, summary: dict | None = None) -> runs.Run:
+    run = runs.Run(tmp_path)
+    runs.write_json(tmp_path / runs.MANIFEST, manifest)
+    if summary is not None:
+        runs.write_json(tmp_path / runs.SUMMARY, summary)
+    return run
+
+
+def test_run_state_follows_the_summary_and_the_process(tmp_path):
+    me = runs.process_identity()
+    assert me["pid"] == os.getpid() and me["pid_started"] is not None
+    running = {"state": runs.RUNNING, **me}
+    assert runs.run_state(write_run(tmp_path, running, {"state": runs.RUNNING})) == runs.RUNNING
+    for state in (runs.FINISHED, runs.INTERRUPTED, runs.FAILED):
+        assert runs.run_state(write_run(tmp_path, running, {"state": state})) == state
+    gone = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"],
+                          capture_output=True, text=True, check=True)
+    dead = {**running, "pid": int(gone.stdout)}  # a process that ended without a summary
+    assert runs.run_state(write_run(tmp_path, dead, {"state": runs.RUNNING})) == runs.FAILED
+    reused = {**running, "pid_started": me["pid_started"] - 1}  # same pid, another process
+    assert runs.run_state(write_run(tmp_path, reused, {"state": runs.RUNNING})) == runs.FAILED
+    elsewhere = {**dead, "host": "another-machine"}  # cannot be checked: trusted
+    assert runs.run_state(write_run(tmp_path, elsewhere, {"state": runs.RUNNING})) == runs.RUNNING
+    (tmp_path / runs.SUMMARY).unlink()  # summary not written yet: the manifest says
+    assert runs.run_state(write_run(tmp_path, running)) == runs.RUNNING
+    assert json.loads((tmp_path / runs.MANIFEST).read_text())["pid"] == os.getpid()
+
+
+def test_a_run_is_reproduced_from_its_params_dir(tmp_path):
+    """params/env.yaml and params/agent.yaml hold everything, the seed included: fed back as a
+    --config file (no other flags) they give the same returns and the same policy."""
+    sets = ["agent.n_steps=8", "agent.batch_size=16", "agent.n_epochs=2", "agent.net_arch=[16]",
+            testing.SHORT_EPISODE]
+    first = testing.train_small("sb3", tmp_path / "a", 2, sets, seed=7)
+    params = first.run.dir / "params"
+    agent = yaml.safe_load((params / "agent.yaml").read_text())
+    assert agent["seed"] == 7
+    config = tmp_path / "again.yaml"
+    config.write_text(yaml.safe_dump({"env": yaml.safe_load((params / "env.yaml").read_text()),
+                                      "agent": agent}))
+    again = training.train("cartpole", "sb3", config_file=config, logs_dir=tmp_path / "b",
+                           console=Console(file=io.StringIO()))
+    returns = [[v for _, v in sorted(read_scalars(o.run.dir)[metrics.MEAN_RETURN])]
+               for o in (first, again)]
+    assert returns[0] == returns[1] and len(returns[0]) == 2
+    assert (again.run.dir / "params" / "agent.yaml").read_text() == \
+        (params / "agent.yaml").read_text()

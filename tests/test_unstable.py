@@ -1,0 +1,185 @@
+"""Unstable physics and diverged policies while training: exploding envs are reset and counted
+and nothing non-finite reaches the learner; a policy that acts with NaN stops the run with one
+line, exit code 3, and its last good checkpoint kept."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import pytest
+import torch
+from typer.testing import CliRunner
+
+from labcli import metrics, plugins, runs, testing
+from labcli.cli import app
+from labcli.errors import TrainingDiverged
+from labcli.plot import read_scalars
+
+SMALL = {
+    "sb3": ["agent.n_steps=8", "agent.batch_size=16", "agent.n_epochs=2", "agent.net_arch=[16]"],
+    "rsl_rl": ["agent.num_steps_per_env=8", "agent.num_learning_epochs=2",
+               "agent.num_mini_batches=2", "agent.actor_hidden_dims=[16]",
+               "agent.critic_hidden_dims=[16]"],
+    "skrl": ["agent.rollouts=8", "agent.learning_epochs=2", "agent.mini_batches=2",
+             "agent.hidden_sizes=[16]"],
+}
+# 1e8 N on a 1 kg cart: strong pushes blow past MuJoCo's limits (or lab's) at once, weak ones
+# do not, so envs explode in every iteration and rewards still vary.
+EXPLODING = "env.action_scale=1e9"
+
+
+def finite_policy(name: str, checkpoint: Path) -> bool:
+    env = testing.make_env()
+    try:
+        policy = plugins.get_framework(name).load_policy(checkpoint, env)
+    finally:
+        env.close()
+    return all(torch.isfinite(t).all() for t in [*policy.parameters(), *policy.buffers()])
+
+
+@pytest.mark.parametrize("name", list(SMALL))
+def test_exploding_envs_are_reset_counted_and_keep_nan_from_the_learner(name, tmp_path,
+                                                                        monkeypatch, capfd):
+    monkeypatch.chdir(tmp_path)  # where MuJoCo would write MUJOCO_LOG.TXT
+    outcome = testing.train_small(name, tmp_path / "logs", 3, [*SMALL[name], EXPLODING])
+    assert outcome.summary["state"] == runs.FINISHED
+    scalars = read_scalars(outcome.run.dir)
+    assert sum(v for _, v in scalars[metrics.INSTABILITIES]) > 0
+    assert sum(v for _, v in scalars[metrics.MUJOCO_WARNINGS]) > 0
+    assert sum(v for _, v in scalars.get(metrics.NONFINITE_ACTIONS, [])) == 0
+    for tag, values in scalars.items():  # losses and learning rates included
+        if tag == "train/explained_variance":
+            continue  # SB3's diagnostic is NaN by definition when every return is the same
+        assert all(math.isfinite(v) for _, v in values), f"{tag}: {values}"
+    assert finite_policy(name, plugins.get_framework(name).checkpoints(outcome.run.dir)[-1].path)
+    # Counted, not printed: no flood on stderr, no log file in the working directory.
+    assert "WARNING" not in capfd.readouterr().err
+    assert not (tmp_path / "MUJOCO_LOG.TXT").exists()
+
+
+UPDATES = {
+    "sb3": ("stable_baselines3.ppo.ppo", "PPO", "train"),
+    "rsl_rl": ("rsl_rl.algorithms.ppo", "PPO", "update"),
+    "skrl": ("skrl.agents.torch.ppo.ppo", "PPO", "update"),
+}
+
+
+def fill_nan(optimizer: torch.optim.Optimizer) -> None:
+    with torch.no_grad():
+        for group in optimizer.param_groups:
+            for p in group["params"]:
+                p.fill_(float("nan"))
+
+
+def poison_update(monkeypatch, name: str, on_call: int) -> None:
+    """The `on_call`-th update of the library's PPO leaves NaN in every parameter it optimizes,
+    as a diverged update does."""
+    module, cls, method = UPDATES[name]
+    owner = getattr(__import__(module, fromlist=[cls]), cls)
+    original = getattr(owner, method)
+    calls = 0
+    step = torch.optim.Adam.step
+
+    def poisoned_step(optimizer, *args, **kwargs):
+        out = step(optimizer, *args, **kwargs)
+        fill_nan(optimizer)
+        return out
+
+    def update(self, *args, **kwargs):
+        nonlocal calls
+        calls += 1
+        if calls != on_call:
+            return original(self, *args, **kwargs)
+        # From inside the update, where a library may then fail on its NaN (RSL-RL samples
+        # with a NaN std) ...
+        monkeypatch.setattr(torch.optim.Adam, "step", poisoned_step)
+        try:
+            out = original(self, *args, **kwargs)
+        finally:
+            monkeypatch.setattr(torch.optim.Adam, "step", step)
+        # ... and after it, for a library whose optimizer steps another way (skrl).
+        fill_nan(getattr(self, "optimizer", None) or self.policy.optimizer)
+        return out
+
+    monkeypatch.setattr(owner, method, update)
+
+
+@pytest.mark.parametrize("name", list(SMALL))
+def test_a_diverged_update_stops_training_and_keeps_the_last_good_checkpoint(
+        name, tmp_path, monkeypatch):
+    poison_update(monkeypatch, name, on_call=3)
+    with pytest.raises(TrainingDiverged) as err:  # no checkpoint due before iteration 10
+        testing.train_small(name, tmp_path, 10, [*SMALL[name], "agent.save_interval=10"])
+    message = str(err.value)
+    assert "iteration 3:" in message and "non-finite values" in message
+    assert "\n" not in message
+    (run_dir,) = {p.parent for p in tmp_path.glob("*/cartpole/*/run.json")}
+    fw = plugins.get_framework(name)
+    good = fw.checkpoints(run_dir)[-1]
+    assert good.iteration == 2 and good.path.name in message  # kept since, saved on failure
+    assert finite_policy(name, good.path)
+    assert (run_dir / "state_2.pt").is_file()  # it resumes exactly, too
+    assert not list(run_dir.glob(".candidate")) and not list(run_dir.glob(".good"))
+    summary = json.loads((run_dir / runs.SUMMARY).read_text())
+    assert summary["state"] == runs.FAILED and summary["checkpoint"] == good.path.name
+    assert summary["error"] == err.value.message
+    assert runs.run_state(runs.Run(run_dir)) == runs.FAILED
+    assert not list(run_dir.glob(".tmp_*"))
+
+
+def test_nan_actions_from_finite_weights_stop_training(tmp_path, monkeypatch):
+    """Weights can stay finite while actions overflow: the env sees the NaN and training stops
+    at the end of that iteration, naming it."""
+    from stable_baselines3.common.policies import ActorCriticPolicy
+
+    forward = ActorCriticPolicy.forward
+    calls = 0
+
+    def nan_from_the_third_rollout(self, obs, deterministic=False):
+        nonlocal calls
+        calls += 1
+        actions, values, log_prob = forward(self, obs, deterministic)
+        return (actions * float("nan") if calls > 16 else actions), values, log_prob
+
+    monkeypatch.setattr(ActorCriticPolicy, "forward", nan_from_the_third_rollout)
+    with pytest.raises(TrainingDiverged) as err:
+        testing.train_small("sb3", tmp_path, 10, [*SMALL["sb3"], "agent.save_interval=10"])
+    assert str(err.value).startswith("iteration 3: the policy emitted non-finite actions (NaN "
+                                     "or inf) in 32 env steps")
+    # The weights after update 2 acted in the bad rollout; those after update 1 did well.
+    assert "The last good checkpoint is model_1.zip." in str(err.value)
+    (run_dir,) = {p.parent for p in tmp_path.glob("sb3/cartpole/*/run.json")}
+    assert [c.iteration for c in plugins.get_framework("sb3").checkpoints(run_dir)] == [1]
+    assert (run_dir / "vecnormalize_1.pkl").is_file()
+
+
+def test_a_diverging_cli_run_is_one_line_and_exit_code_3(tmp_path):
+    logs = tmp_path / "logs"
+    result = CliRunner().invoke(app, [
+        "train", "--task", "cartpole", "--framework", "sb3", "--num-envs", "8",
+        "--max-iterations", "20", "--set", "agent.n_steps=8", "--set", "agent.batch_size=16",
+        "--set", "agent.learning_rate=1e30"], env={"LAB_LOGS_DIR": str(logs)})
+    assert result.exit_code == 3, result.output
+    error = result.stderr.splitlines()[-1]
+    assert error.startswith("error: iteration ") and "non-finite" in error
+    assert "Traceback" not in result.stderr
+    assert "Traceback" not in result.output
+    (summary,) = logs.glob("sb3/cartpole/*/summary.json")
+    assert json.loads(summary.read_text())["state"] == runs.FAILED
+
+
+def test_kept_states_of_a_killed_run_are_never_committed(tmp_path, monkeypatch):
+    """A SIGKILL leaves the hidden kept states behind; a resumed run that diverges at once must
+    not bring them back as checkpoints."""
+    first = testing.train_small("sb3", tmp_path, 2, SMALL["sb3"])
+    run_dir = first.run.dir
+    for stale in (".candidate", ".good"):
+        (run_dir / stale).mkdir()
+        (run_dir / stale / "model_9.zip").write_bytes((run_dir / "model_2.zip").read_bytes())
+    poison_update(monkeypatch, "sb3", on_call=1)
+    with pytest.raises(TrainingDiverged) as err:
+        testing.train_small("sb3", tmp_path, 5, SMALL["sb3"], checkpoint="latest")
+    assert "iteration 3:" in str(err.value) and "model_2.zip" in str(err.value)
+    assert [c.iteration for c in plugins.get_framework("sb3").checkpoints(run_dir)] == [2]
