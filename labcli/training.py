@@ -187,7 +187,8 @@ class TrainContext:
         # generator): the run must go on with the numbers it would have drawn without the check.
         rng = snapshot.rng_state()
         try:
-            policy = self.framework.load_policy(checkpoint, self.env)
+            # Policies load onto the CPU (portable checkpoints); the env may be on a GPU.
+            policy = self.framework.load_policy(checkpoint, self.env).to(self.env.device)
             with torch.no_grad():
                 return bool(torch.isfinite(policy(self.env.observations())).all())
         finally:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import copy
 import os
 
 import mujoco
@@ -35,7 +36,9 @@ def _cores() -> int:
 class CpuSim(Sim):
     def __init__(self, model: mujoco.MjModel, num_envs: int, nthread: int | None = None):
         # MuJoCo's own reset of a diverged state would hide it from `Sim.unstable()`: lab resets
-        # such envs itself, and counts them. (MuJoCo Warp has no such reset, nor the flag.)
+        # such envs itself, and counts them. On a copy: the caller's model may also go to MuJoCo
+        # Warp, which has no such reset and refuses the flag.
+        model = copy.copy(model)
         model.opt.disableflags |= mujoco.mjtDisableBit.mjDSBL_AUTORESET
         self.model = model
         self.num_envs = num_envs
