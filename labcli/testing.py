@@ -31,6 +31,16 @@ TASK = "cartpole"
 NUM_ENVS = 4
 # Cartpole steps 0.02 s: 0.1 s episodes time out after 5 steps, so every iteration ends some.
 SHORT_EPISODE = "env.episode_length_s=0.1"
+# The built-in frameworks at the smallest sizes that still run every code path: a few seconds of
+# training for tests that exercise the machinery around learning, not the learning.
+SMALL_AGENTS = {
+    "sb3": ["agent.n_steps=8", "agent.batch_size=16", "agent.n_epochs=2", "agent.net_arch=[16]"],
+    "rsl_rl": ["agent.num_steps_per_env=8", "agent.num_learning_epochs=2",
+               "agent.num_mini_batches=2", "agent.actor_hidden_dims=[16]",
+               "agent.critic_hidden_dims=[16]"],
+    "skrl": ["agent.rollouts=8", "agent.learning_epochs=2", "agent.mini_batches=2",
+             "agent.hidden_sizes=[16]"],
+}
 EXPORT_TOLERANCE = 1e-5
 # Resumed and unbroken runs do the same float operations in the same order: they agree exactly
 # on the CPU; the tolerance only leaves room for a library that reorders a reduction.

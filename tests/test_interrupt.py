@@ -136,14 +136,7 @@ UPDATES = {
     "rsl_rl": ("rsl_rl.algorithms.ppo", "PPO", "update"),
     "skrl": ("skrl.agents.torch.ppo.ppo", "PPO", "update"),
 }
-SMALL = {
-    "sb3": ["agent.n_steps=8", "agent.batch_size=16", "agent.n_epochs=2", "agent.net_arch=[16]"],
-    "rsl_rl": ["agent.num_steps_per_env=8", "agent.num_learning_epochs=2",
-               "agent.num_mini_batches=2", "agent.actor_hidden_dims=[16]",
-               "agent.critic_hidden_dims=[16]"],
-    "skrl": ["agent.rollouts=8", "agent.learning_epochs=2", "agent.mini_batches=2",
-             "agent.hidden_sizes=[16]"],
-}
+SMALL = testing.SMALL_AGENTS
 
 
 @pytest.mark.parametrize("name", list(UPDATES))

@@ -17,14 +17,7 @@ from labcli.cli import app
 from labcli.errors import TrainingDiverged
 from labcli.plot import read_scalars
 
-SMALL = {
-    "sb3": ["agent.n_steps=8", "agent.batch_size=16", "agent.n_epochs=2", "agent.net_arch=[16]"],
-    "rsl_rl": ["agent.num_steps_per_env=8", "agent.num_learning_epochs=2",
-               "agent.num_mini_batches=2", "agent.actor_hidden_dims=[16]",
-               "agent.critic_hidden_dims=[16]"],
-    "skrl": ["agent.rollouts=8", "agent.learning_epochs=2", "agent.mini_batches=2",
-             "agent.hidden_sizes=[16]"],
-}
+SMALL = testing.SMALL_AGENTS
 # 1e8 N on a 1 kg cart: strong pushes blow past MuJoCo's limits (or lab's) at once, weak ones
 # do not, so envs explode in every iteration and rewards still vary.
 EXPLODING = "env.action_scale=1e9"
