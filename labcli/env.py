@@ -13,6 +13,7 @@ from gymnasium.vector import AutoresetMode
 from gymnasium.vector.utils import batch_space
 
 from labcli import metrics
+from labcli.cuda_graph import GraphedStep
 from labcli.errors import LabError
 from labcli.rendering import SceneRenderer
 from labcli.sim import default_backend, make_sim
@@ -84,6 +85,10 @@ class LabVecEnv(gym.vector.VectorEnv):
         self._all = torch.ones(n, dtype=torch.bool, device=dev)
         self._renderer: SceneRenderer | None = None
         self._resume_state: dict[str, torch.Tensor] | None = None
+        # On a GPU the step is host-bound when eager: it replays as one CUDA graph instead.
+        self._graphed = (GraphedStep(self._step, [self.generator], f"the env step of task "
+                                     f"'{spec.name}'")
+                         if self.device.type == "cuda" and cfg.cuda_graph else None)
 
     # gymnasium API ---------------------------------------------------------------------------
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
@@ -103,6 +108,25 @@ class LabVecEnv(gym.vector.VectorEnv):
 
     def step(self, actions: torch.Tensor):
         actions = torch.as_tensor(actions, device=self.device, dtype=torch.float32)
+        if actions.shape != self.action_space.shape:
+            raise LabError(f"actions of shape {tuple(actions.shape)} for an env of "
+                           f"{self.num_envs} envs with {len(self.action_names)} actions each",
+                           f"pass a [{self.num_envs}, {len(self.action_names)}] tensor")
+        if self._graphed is not None:
+            return self._graphed(actions)
+        return self._step(actions)
+
+    def close(self, **kwargs: Any) -> None:
+        if self._graphed is not None:
+            self._graphed.close()
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
+        self.sim.close()
+
+    def _step(self, actions: torch.Tensor):
+        """The MDP of one env step, as torch operations only (no host syncs, fixed shapes), so
+        that on a GPU it replays as a CUDA graph."""
         safe = actions.nan_to_num(0.0)
         # nan_to_num changed exactly the non-finite entries (NaN equals nothing, inf != max).
         bad_action = safe.ne(actions).any(dim=1)
@@ -129,12 +153,6 @@ class LabVecEnv(gym.vector.VectorEnv):
         info = {"final_obs": final_obs, "_final_obs": done, "episode": episode, "_episode": done,
                 "terminations": terminated}
         return obs, reward, terminated_any, truncated, info
-
-    def close(self, **kwargs: Any) -> None:
-        if self._renderer is not None:
-            self._renderer.close()
-            self._renderer = None
-        self.sim.close()
 
     # looking at env 0 ------------------------------------------------------------------------
     def render(self) -> np.ndarray:
