@@ -7,9 +7,9 @@
                                                 (seconds for `lab train` to reach success 0.95)
 
 lab:  `LabVecEnv.step` with a policy's actions (torch MLP on the observations plus noise): task
-      terms, terminations, statistics and masked resets included. Eager, and again with that
-      policy + env step captured once in a torch CUDA graph and replayed (same code, no Python
-      or launch cost per step; the warp backend records its kernels into torch's graph).
+      terms, terminations, statistics and masked resets included. As users get it (the env
+      replays its step as one CUDA graph after three eager steps), and again with
+      `env.cuda_graph=false` (every step launched eagerly from Python).
 raw:  the RL loop of ../shared/peers/bench_gpu.py ("rl") on the task's own model: torch MLP ->
       ctrl (zero-copy) -> CUDA graph of `decimation` physics steps -> done/reward in torch ->
       captured masked `reset_data` -> random state for the reset worlds. No task code, no stats.
@@ -68,16 +68,16 @@ def timed(body: Callable[[], None], steps: int, repeats: int = 3, warmup: int = 
     return statistics.median(times)
 
 
-def make_env(task: str, num_envs: int) -> LabVecEnv:
+def make_env(task: str, num_envs: int, cuda_graph: bool = True) -> LabVecEnv:
     spec = plugins.get_task(task)
-    return LabVecEnv(spec, spec.config(num_envs=num_envs), backend="warp", device="cuda")
+    return LabVecEnv(spec, spec.config(num_envs=num_envs, cuda_graph=cuda_graph), backend="warp",
+                     device="cuda")
 
 
-def lab_loop(task: str, num_envs: int, steps: int, graphed: bool = False) -> dict:
-    """`env.step(policy(obs) + noise)`, eager; or, with `graphed`, that whole step captured once
-    with torch.cuda.graph (the warp backend records its kernels into torch's graph) and replayed:
-    the same env and task code without Python and launch overhead per step."""
-    env = make_env(task, num_envs)
+def lab_loop(task: str, num_envs: int, steps: int, cuda_graph: bool = True) -> dict:
+    """`env.step(policy(obs) + noise)` with the env's step replayed as a CUDA graph (the
+    default), or launched eagerly (`cuda_graph=False`); the policy runs eagerly in both."""
+    env = make_env(task, num_envs, cuda_graph)
     n_act = env.single_action_space.shape[0]
     policy = mlp(env.single_observation_space.shape[0], n_act)
     gen = torch.Generator(device="cuda").manual_seed(0)
@@ -89,23 +89,9 @@ def lab_loop(task: str, num_envs: int, steps: int, graphed: bool = False) -> dic
         next_obs, *_ = env.step((policy(obs) + noise).clamp(-1.0, 1.0))
         obs.copy_(next_obs)
 
-    key = "lab_graphed" if graphed else "lab"
-    if graphed:
-        side = torch.cuda.Stream()
-        side.wait_stream(torch.cuda.current_stream())
-        with torch.cuda.stream(side):  # warm-up off the default stream, as torch asks
-            for _ in range(3):
-                step()
-        torch.cuda.current_stream().wait_stream(side)
-        graph = torch.cuda.CUDAGraph()
-        for g in (gen, env.generator):
-            graph.register_generator_state(g)
-        with torch.cuda.graph(graph, capture_error_mode="thread_local"):
-            step()
-        out = {key: num_envs * steps / timed(graph.replay, steps)}
-    else:
-        out = {key: num_envs * steps / timed(step, steps),
-               "lab_syncs_per_step": count_syncs(step, 10)}
+    key = "lab" if cuda_graph else "lab_eager"
+    out = {key: num_envs * steps / timed(step, steps),
+           key + "_syncs_per_step": count_syncs(step, 10)}
     out[key + "_episodes"] = env.pop_stats().get(metrics.EPISODES, 0.0)
     env.close()
     return out
@@ -205,8 +191,9 @@ def startup(task: str, num_envs: int) -> None:
 
 def host_profile(task: str, num_envs: int, steps: int = 200) -> None:
     """Host (Python + launch) microseconds per env step, by part of the step. At a size where
-    the GPU keeps up, this is what bounds lab's env-steps/s."""
-    env = make_env(task, num_envs)
+    the GPU keeps up, this is what bounds lab's eager env-steps/s (replayed as a CUDA graph, the
+    step costs one launch)."""
+    env = make_env(task, num_envs, cuda_graph=False)
     policy = mlp(env.single_observation_space.shape[0], env.single_action_space.shape[0])
     totals: dict[str, float] = defaultdict(float)
 
@@ -300,14 +287,15 @@ def main() -> None:
     for n in (int(s) for s in a.sizes.split(",") if s):
         steps = steps_for(n)
         row = {"num_envs": n, "steps": steps, **raw_loop(a.task, n, steps),
-               **lab_loop(a.task, n, steps), **lab_loop(a.task, n, steps, graphed=True)}
+               **lab_loop(a.task, n, steps), **lab_loop(a.task, n, steps, cuda_graph=False)}
         row["ratio"] = row["lab"] / row["raw"]
-        row["ratio_graphed"] = row["lab_graphed"] / row["raw"]
+        row["ratio_eager"] = row["lab_eager"] / row["raw"]
         rows.append(row)
         print(f"{n:>7} envs | raw {row['raw']:>12,.0f} | lab {row['lab']:>12,.0f} "
-              f"({row['ratio']:.0%} of raw) | lab, step in a torch CUDA graph "
-              f"{row['lab_graphed']:>12,.0f} ({row['ratio_graphed']:.0%}) env-steps/s | "
-              f"host syncs per lab step {row['lab_syncs_per_step']:g}", flush=True)
+              f"({row['ratio']:.0%} of raw) | lab, eager step {row['lab_eager']:>12,.0f} "
+              f"({row['ratio_eager']:.0%}) env-steps/s | host syncs per lab step "
+              f"{row['lab_syncs_per_step']:g} (eager {row['lab_eager_syncs_per_step']:g})",
+              flush=True)
         torch.cuda.empty_cache()
     if a.out:
         a.out.mkdir(parents=True, exist_ok=True)

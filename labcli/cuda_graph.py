@@ -54,7 +54,10 @@ class GraphedStep:
         self._graph = self._input = self._output = None
 
     def _capture(self, actions: torch.Tensor) -> None:
-        self._input = actions.clone()
+        # Not an inference tensor, even when captured under torch.inference_mode (RSL-RL's
+        # rollout): a later step outside that mode copies its actions in.
+        with torch.inference_mode(False):
+            self._input = torch.empty(actions.shape, dtype=actions.dtype, device=actions.device)
         graph = torch.cuda.CUDAGraph()
         for generator in self._generators:
             graph.register_generator_state(generator)

@@ -177,34 +177,88 @@ def test_env_resets_envs_fed_non_finite_actions(warp_env):
     assert env.episode_length[3] == 0
 
 
+def pushing_actions(n: int, i: int) -> torch.Tensor:
+    """Full pushes that drive some carts off the rail within tens of steps: episodes end and
+    random resets happen while the step replays as a graph."""
+    return torch.sin(torch.arange(n, device="cuda")[:, None] * 0.1 + i * 0.05).sign()
+
+
 @pytest.mark.gpu
 @on_gpu
-def test_env_step_replays_as_one_torch_cuda_graph():
-    """A whole env step can be captured with torch.cuda.graph (the sim records its kernels into
-    torch's graph) and replays to the same trajectory as the eager step."""
-    n, steps = 128, 60
-    envs = [LabVecEnv(SPEC, CartpoleConfig(num_envs=n), backend="warp", device="cuda")
-            for _ in range(2)]
-    eager, graphed = envs
-    actions = torch.zeros(n, 1, device="cuda")
-    for env in envs:
-        env.reset(seed=0)
-    side = torch.cuda.Stream()
-    side.wait_stream(torch.cuda.current_stream())
-    with torch.cuda.stream(side):  # warm up off the default stream, as torch asks
-        graphed.step(actions)
-    torch.cuda.current_stream().wait_stream(side)
-    graphed.reset(seed=0)
-    graph = torch.cuda.CUDAGraph()
-    graph.register_generator_state(graphed.generator)
-    with torch.cuda.graph(graph, capture_error_mode="thread_local"):
-        out = graphed.step(actions)
-    graphed.reset(seed=0)
+def test_graphed_step_equals_the_eager_step():
+    """The env's CUDA graph (captured after three eager steps) replays the same MDP as eager
+    steps: observations, rewards, flags, final observations, episodes, random resets, stats."""
+    n, steps = 128, 120
+    graphed = LabVecEnv(SPEC, CartpoleConfig(num_envs=n), backend="warp", device="cuda")
+    eager = LabVecEnv(SPEC, CartpoleConfig(num_envs=n, cuda_graph=False), backend="warp",
+                      device="cuda")
+    assert graphed._graphed is not None and eager._graphed is None
+    for env in (graphed, eager):
+        env.reset(seed=3)
+    ended = 0
     for i in range(steps):
-        actions.copy_(torch.sin(torch.arange(n, device="cuda")[:, None] * 0.1 + i * 0.3))
-        expected = eager.step(actions)
-        graph.replay()
-        torch.testing.assert_close(out[0], expected[0], rtol=0, atol=1e-5)
-        assert torch.equal(out[2], expected[2]) and torch.equal(out[3], expected[3])
-    for env in envs:
+        actions = pushing_actions(n, i)
+        got, want = graphed.step(actions), eager.step(actions)
+        torch.testing.assert_close(got[0], want[0], rtol=0, atol=1e-5)  # obs
+        torch.testing.assert_close(got[1], want[1], rtol=0, atol=1e-5)  # reward
+        assert torch.equal(got[2], want[2]) and torch.equal(got[3], want[3])
+        torch.testing.assert_close(got[4]["final_obs"], want[4]["final_obs"], rtol=0, atol=1e-5)
+        assert torch.equal(got[4]["episode"]["l"], want[4]["episode"]["l"])
+        ended += int((want[2] | want[3]).sum())
+    assert ended > 10, "the pushes should end episodes, so that resets replay too"
+    got, want = graphed.pop_stats(), eager.pop_stats()
+    assert got.keys() == want.keys()
+    for key in got:
+        assert got[key] == pytest.approx(want[key], rel=1e-4, abs=1e-5), key
+    for env in (graphed, eager):
         env.close()
+
+
+@pytest.mark.gpu
+@on_gpu
+def test_graphed_step_returns_fresh_tensors(warp_env):
+    """A learner keeps `obs` while it steps to `next_obs`: the graph's replay must not overwrite
+    what an earlier step returned."""
+    env = warp_env
+    env.reset(seed=0)
+    actions = torch.ones(env.num_envs, 1, device="cuda")
+    outputs = [env.step(actions) for _ in range(6)]  # the capture happens at the fourth
+    kept = outputs[4][0].clone()
+    env.step(-actions)
+    assert torch.equal(outputs[4][0], kept)
+    assert outputs[4][0].data_ptr() != outputs[5][0].data_ptr()
+    # Outputs that are one tensor in the eager step are one tensor after a replay too.
+    info = outputs[5][4]
+    assert info["_final_obs"] is info["_episode"]
+
+
+class SyncingCartpole(Cartpole):
+    """Reads a value back to the host in its step, which no CUDA graph can hold."""
+
+    def reward_terms(self) -> dict[str, torch.Tensor]:
+        terms = super().reward_terms()
+        if terms["alive"].sum().item() < 0:
+            raise AssertionError("unreachable")
+        return terms
+
+
+@pytest.mark.gpu
+@on_gpu
+def test_a_step_that_syncs_is_one_line_that_says_how_to_step_eagerly():
+    spec = TaskSpec(name="syncing", task=SyncingCartpole, config=CartpoleConfig, model=MODEL)
+    env = LabVecEnv(spec, CartpoleConfig(num_envs=16), backend="warp", device="cuda")
+    env.reset(seed=0)
+    actions = torch.zeros(16, 1, device="cuda")
+    for _ in range(3):  # eager warm-up steps: syncing is only slow
+        env.step(actions)
+    with pytest.raises(LabError, match="could not be captured in a CUDA graph") as err:
+        env.step(actions)
+    assert "env.cuda_graph=false" in err.value.hint
+    env.close()
+    eager = LabVecEnv(spec, CartpoleConfig(num_envs=16, cuda_graph=False), backend="warp",
+                      device="cuda")
+    eager.reset(seed=0)
+    for _ in range(5):
+        obs, *_ = eager.step(actions)
+    assert torch.isfinite(obs).all()
+    eager.close()
