@@ -4,8 +4,9 @@ so a step costs no copies and no host round trip.
 
 Kernels compile on first use (~1 min) into warp's kernel cache, `~/.cache/warp/<warp version>`,
 or `$LAB_WARP_CACHE/<warp version>` where that variable is set; later starts load them (~5 s).
-A whole env step can also be captured with `torch.cuda.graph(..., capture_error_mode=
-"thread_local")`: during a capture the sim records its kernels into torch's graph.
+`LabVecEnv` captures its whole step with `torch.cuda.graph(..., capture_error_mode=
+"thread_local")` (labcli/cuda_graph.py): during a capture the sim records its kernels into
+torch's graph.
 
 Imported only by `make_sim("warp", ...)`: `lab` itself runs without warp installed.
 """
