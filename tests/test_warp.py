@@ -232,6 +232,23 @@ def test_graphed_step_returns_fresh_tensors(warp_env):
     assert info["_final_obs"] is info["_episode"]
 
 
+@pytest.mark.gpu
+@on_gpu
+def test_eager_calls_between_replays_see_the_replayed_state(warp_env):
+    """Between replays, eager code reads the env (a full reset, a learner's
+    `env.observations()`): it must see what the last replay computed, also after an eager reset
+    ran the task's code outside the graph."""
+    env = warp_env
+    env.reset(seed=0)
+    actions = torch.ones(env.num_envs, 1, device="cuda")
+    for _ in range(5):  # past the capture
+        env.step(actions)
+    env.reset(seed=1)  # eager: the task's reset and any per-step caches run outside the graph
+    for i in range(3):
+        obs, *_ = env.step(actions if i % 2 else -actions)
+        assert torch.equal(env.observations(), obs)
+
+
 class SyncingCartpole(Cartpole):
     """Reads a value back to the host in its step, which no CUDA graph can hold."""
 
