@@ -132,6 +132,7 @@ class LabVecEnv(gym.vector.VectorEnv):
         bad_action = safe.ne(actions).any(dim=1)
         self.task.apply_actions(safe.clamp_(-1.0, 1.0))
         self.sim.step(self.cfg.decimation)
+        self.task.update()
         self.episode_length += 1
 
         causes = self.task.terminations()
@@ -196,6 +197,7 @@ class LabVecEnv(gym.vector.VectorEnv):
         for name, target in targets.items():
             target.copy_(state[name])
         self.generator.set_state(state["generator"])
+        self.task.update()
 
     def resume_from(self, state: dict[str, torch.Tensor]) -> None:
         """Make the next full `reset()` continue the saved episodes instead of starting new ones:
@@ -243,6 +245,7 @@ class LabVecEnv(gym.vector.VectorEnv):
     def _reset_envs(self, mask: torch.Tensor) -> None:
         self.sim.reset_to_defaults(mask)
         self.task.reset(mask, self.generator)
+        self.task.update()
         self.episode_length.masked_fill_(mask, 0)
         self.episode_return.masked_fill_(mask, 0.0)
         self.episode_terms.masked_fill_(mask[:, None], 0.0)
