@@ -77,11 +77,13 @@ class LabVecEnv(gym.vector.VectorEnv):
         self.episode_terms = torch.zeros(n, len(self.reward_names), device=dev)
         k = len(self.reward_names)
         self._weighted = torch.empty(n, k, device=dev)
-        # One row per env, one column per figure that `pop_stats` reports (see `_accumulate`).
-        self._ended = torch.empty(n, 5 + k + len(self.termination_names), dtype=torch.float64,
-                                  device=dev)
-        self._ended_t, self._ended_done = self._ended.t(), self._ended[:, 0]
-        self._stats = torch.zeros(self._ended.shape[1], dtype=torch.float64, device=dev)
+        # One row per figure that `pop_stats` reports, one column per env (see `_accumulate`),
+        # and where each figure goes in it, as `[num_envs, ...]` views made once.
+        t = len(self.termination_names)
+        self._ended = torch.empty(5 + k + t, n, dtype=torch.float64, device=dev)
+        e = self._ended
+        self._ended_figures = (e[0], e[1], e[2], e[3], e[4:4 + k].t(), e[4 + k:-1].t(), e[-1])
+        self._stats = torch.zeros(len(e), dtype=torch.float64, device=dev)
         self._all = torch.ones(n, dtype=torch.bool, device=dev)
         self._renderer: SceneRenderer | None = None
         self._resume_state: dict[str, torch.Tensor] | None = None
@@ -208,14 +210,15 @@ class LabVecEnv(gym.vector.VectorEnv):
     # statistics ------------------------------------------------------------------------------
     def _accumulate(self, done: torch.Tensor, success: torch.Tensor, terminated: torch.Tensor,
                     bad_action: torch.Tensor) -> None:
-        """Add the ended episodes' figures to the running sums: a column per figure, summed
-        over the envs weighted by `done` in one matrix-vector product, not an op per figure.
-        A non-finite action always ends its episode, so `done` weights count those too."""
-        # float32 holds lengths exactly up to 2**24 steps, far beyond any time-out.
-        ends = torch.stack((done, self.episode_return, self.episode_length, success), dim=1)
-        torch.cat((ends, self.episode_terms, terminated, bad_action[:, None]), dim=1,
-                  out=self._ended)
-        self._stats.addmv_(self._ended_t, self._ended_done)
+        """Add the ended episodes' figures to the running sums: each figure is copied into its
+        rows of one float64 matrix (no stack or cat of mixed dtypes), which are summed over the
+        envs weighted by `done` in one matrix-vector product, not an op per figure. A non-finite
+        action always ends its episode, so `done` weights count those too."""
+        figures = (done, self.episode_return, self.episode_length, success, self.episode_terms,
+                   terminated, bad_action)
+        for rows, figure in zip(self._ended_figures, figures, strict=True):
+            rows.copy_(figure)
+        self._stats.addmv_(self._ended, self._ended_figures[0])
 
     def pop_stats(self) -> dict[str, float]:
         """Means over the episodes that ended since the last call, under `metrics` tags; empty
@@ -253,8 +256,10 @@ class LabVecEnv(gym.vector.VectorEnv):
     def _reward(self, unstable: torch.Tensor) -> torch.Tensor:
         """The weighted terms' sum; each weighted term also adds to its episode's total."""
         terms = self.task.reward_terms()
-        weighted = torch.stack([terms[name] for name in self.reward_names], dim=1,
-                               out=self._weighted)
+        # Stacked as rows (contiguous copies), then cast and transposed in one copy: half the
+        # cost of stacking columns of another dtype.
+        rows = torch.stack([terms[name] for name in self.reward_names])
+        weighted = self._weighted.copy_(rows.t())
         weighted.mul_(self._weights).nan_to_num_(0.0, 0.0, 0.0)
         # A diverged env's state is garbage: it earns nothing on its last step.
         weighted.masked_fill_(unstable[:, None], 0.0)
