@@ -72,17 +72,17 @@ class LabVecEnv(gym.vector.VectorEnv):
         self.generator.manual_seed(seed)
 
         n, dev = self.num_envs, self.device
+        k, t = len(self.reward_names), len(self.termination_names)
         self.episode_length = torch.zeros(n, dtype=torch.long, device=dev)
-        self.episode_return = torch.zeros(n, device=dev)
-        self.episode_terms = torch.zeros(n, len(self.reward_names), device=dev)
-        k = len(self.reward_names)
+        # The return and the per-term sums side by side: one op clears or copies them all.
+        sums = self._episode_sums = torch.zeros(n, 1 + k, device=dev)
+        self.episode_return, self.episode_terms = sums[:, 0], sums[:, 1:]
         self._weighted = torch.empty(n, k, device=dev)
         # One row per figure that `pop_stats` reports, one column per env (see `_accumulate`),
         # and where each figure goes in it, as `[num_envs, ...]` views made once.
-        t = len(self.termination_names)
         self._ended = torch.empty(5 + k + t, n, dtype=torch.float64, device=dev)
         e = self._ended
-        self._ended_figures = (e[0], e[1], e[2], e[3], e[4:4 + k].t(), e[4 + k:-1].t(), e[-1])
+        self._ended_figures = (e[0], e[1:2 + k].t(), e[2 + k], e[3 + k], e[4 + k:-1].t(), e[-1])
         self._stats = torch.zeros(len(e), dtype=torch.float64, device=dev)
         self._all = torch.ones(n, dtype=torch.bool, device=dev)
         self._renderer: SceneRenderer | None = None
@@ -214,8 +214,7 @@ class LabVecEnv(gym.vector.VectorEnv):
         rows of one float64 matrix (no stack or cat of mixed dtypes), which are summed over the
         envs weighted by `done` in one matrix-vector product, not an op per figure. A non-finite
         action always ends its episode, so `done` weights count those too."""
-        figures = (done, self.episode_return, self.episode_length, success, self.episode_terms,
-                   terminated, bad_action)
+        figures = (done, self._episode_sums, self.episode_length, success, terminated, bad_action)
         for rows, figure in zip(self._ended_figures, figures, strict=True):
             rows.copy_(figure)
         self._stats.addmv_(self._ended, self._ended_figures[0])
@@ -232,10 +231,10 @@ class LabVecEnv(gym.vector.VectorEnv):
         stats = {
             metrics.EPISODES: count,
             metrics.MEAN_RETURN: values[1] / count,
-            metrics.MEAN_LENGTH: values[2] / count,
-            metrics.SUCCESS_RATE: values[3] / count,
+            metrics.MEAN_LENGTH: values[2 + k] / count,
+            metrics.SUCCESS_RATE: values[3 + k] / count,
         }
-        for name, total in zip(self.reward_names, values[4:4 + k], strict=True):
+        for name, total in zip(self.reward_names, values[2:2 + k], strict=True):
             stats[metrics.REWARD_TERM + name] = total / count
         terminations = values[4 + k:-1]
         for name, total in zip(self.termination_names, terminations, strict=True):
@@ -250,8 +249,7 @@ class LabVecEnv(gym.vector.VectorEnv):
         self.task.reset(mask, self.generator)
         self.task.update()
         self.episode_length.masked_fill_(mask, 0)
-        self.episode_return.masked_fill_(mask, 0.0)
-        self.episode_terms.masked_fill_(mask[:, None], 0.0)
+        self._episode_sums.masked_fill_(mask[:, None], 0.0)
 
     def _reward(self, unstable: torch.Tensor) -> torch.Tensor:
         """The weighted terms' sum; each weighted term also adds to its episode's total."""
