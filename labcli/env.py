@@ -65,8 +65,8 @@ class LabVecEnv(gym.vector.VectorEnv):
                 f"task '{spec.name}' computes reward terms {sorted(term_names)} but its config "
                 f"weighs {sorted(self.reward_names)}",
                 "give reward_weights exactly one entry per reward term")
-        self._weights = torch.tensor([cfg.reward_weights[k] for k in self.reward_names],
-                                     device=self.device)
+        weights = torch.tensor([cfg.reward_weights[k] for k in self.reward_names],
+                               device=self.device)
         self.termination_names = [*self.task.terminations(), UNSTABLE]
         self.generator = torch.Generator(self.device)
         self.generator.manual_seed(seed)
@@ -74,15 +74,19 @@ class LabVecEnv(gym.vector.VectorEnv):
         n, dev = self.num_envs, self.device
         k, t = len(self.reward_names), len(self.termination_names)
         self.episode_length = torch.zeros(n, dtype=torch.long, device=dev)
-        # The return and the per-term sums side by side: one op clears or copies them all.
-        sums = self._episode_sums = torch.zeros(n, 1 + k, device=dev)
-        self.episode_return, self.episode_terms = sums[:, 0], sums[:, 1:]
+        # Per-env figures are kept as rows over the envs (`[figure, num_envs]`) or tiled to the
+        # full shape: an op that broadcasts over a short last dimension steps through the envs
+        # one at a time, at 1024 envs several times the cost of one flat loop.
+        # The return and the per-term sums, a row each: one op clears or copies them all.
+        sums = self._episode_sums = torch.zeros(1 + k, n, device=dev)
+        self.episode_return, self.episode_terms = sums[0], sums[1:].t()
+        self._weights = weights.expand(n, k).contiguous()
         self._weighted = torch.empty(n, k, device=dev)
         # One row per figure that `pop_stats` reports, one column per env (see `_accumulate`),
         # and where each figure goes in it, as `[num_envs, ...]` views made once.
         self._ended = torch.empty(5 + k + t, n, dtype=torch.float64, device=dev)
         e = self._ended
-        self._ended_figures = (e[0], e[1:2 + k].t(), e[2 + k], e[3 + k], e[4 + k:-1].t(), e[-1])
+        self._ended_figures = (e[0], e[1:2 + k], e[2 + k], e[3 + k], e[4 + k:-1].t(), e[-1])
         self._stats = torch.zeros(len(e), dtype=torch.float64, device=dev)
         self._all = torch.ones(n, dtype=torch.bool, device=dev)
         self._renderer: SceneRenderer | None = None
@@ -249,18 +253,17 @@ class LabVecEnv(gym.vector.VectorEnv):
         self.task.reset(mask, self.generator)
         self.task.update()
         self.episode_length.masked_fill_(mask, 0)
-        self._episode_sums.masked_fill_(mask[:, None], 0.0)
+        self._episode_sums.masked_fill_(mask, 0.0)
 
     def _reward(self, unstable: torch.Tensor) -> torch.Tensor:
         """The weighted terms' sum; each weighted term also adds to its episode's total."""
         terms = self.task.reward_terms()
-        # Stacked as rows (contiguous copies), then cast and transposed in one copy: half the
-        # cost of stacking columns of another dtype.
-        rows = torch.stack([terms[name] for name in self.reward_names])
+        rows = torch.stack([terms[name] for name in self.reward_names])  # contiguous copies
+        # A diverged env's state is garbage: it earns nothing on its last step.
+        rows.masked_fill_(unstable, 0.0)
+        # Cast and transposed in one copy: half the cost of stacking columns of another dtype.
         weighted = self._weighted.copy_(rows.t())
         weighted.mul_(self._weights).nan_to_num_(0.0, 0.0, 0.0)
-        # A diverged env's state is garbage: it earns nothing on its last step.
-        weighted.masked_fill_(unstable[:, None], 0.0)
         reward = weighted.sum(dim=1)
         self.episode_return += reward
         self.episode_terms += weighted

@@ -45,7 +45,10 @@ class Cartpole(Task):
         ranges = torch.tensor(
             [cfg.reset_cart_pos, cfg.reset_pole_angle, cfg.reset_cart_vel, cfg.reset_pole_vel],
             dtype=sim.qpos.dtype, device=sim.qpos.device)
-        self._reset_low, self._reset_width = ranges[:, 0], ranges[:, 1] - ranges[:, 0]
+        # Tiled to [num_envs, 4]: one flat loop, where broadcasting [4] walks the envs one by one.
+        low, width = ranges[:, 0], ranges[:, 1] - ranges[:, 0]
+        self._reset_low, self._reset_width = (x.expand(sim.num_envs, 4).contiguous()
+                                              for x in (low, width))
         self._ones = torch.ones_like(sim.qpos[:, 0])  # the "alive" term; the env only reads it
         # Views of the live state columns, taken once: indexing costs as much as an op on them.
         self._cart_pos, self._pole_pos = sim.qpos.unbind(1)
@@ -78,11 +81,11 @@ class Cartpole(Task):
     def reset(self, mask: torch.Tensor, generator: torch.Generator) -> None:
         u = torch.rand(mask.shape[0], 4, generator=generator, device=mask.device,
                        dtype=self._reset_low.dtype)
-        sample = self._reset_low + u * self._reset_width
+        pos, vel = (self._reset_low + u * self._reset_width).split(2, dim=1)
         m = mask[:, None]
         # In place (out= is the state itself): no temporary state and no copy back.
-        torch.where(m, sample[:, :2], self.sim.qpos, out=self.sim.qpos)
-        torch.where(m, sample[:, 2:], self.sim.qvel, out=self.sim.qvel)
+        torch.where(m, pos, self.sim.qpos, out=self.sim.qpos)
+        torch.where(m, vel, self.sim.qvel, out=self.sim.qvel)
 
     def success(self, time_out: torch.Tensor) -> torch.Tensor:
         # Only time-outs are judged, and leaving the rail ends an episode before its time-out:
