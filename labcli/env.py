@@ -83,7 +83,7 @@ class LabVecEnv(gym.vector.VectorEnv):
         self._weights = weights.expand(n, k).contiguous()
         self._weighted = torch.empty(n, k, device=dev)
         # One row per figure that `pop_stats` reports, one column per env (see `_accumulate`),
-        # and where each figure goes in it, as `[num_envs, ...]` views made once.
+        # and where each figure goes in it: views made once, each shaped like its figure.
         self._ended = torch.empty(5 + k + t, n, dtype=torch.float64, device=dev)
         e = self._ended
         self._ended_figures = (e[0], e[1:2 + k], e[2 + k], e[3 + k], e[4 + k:-1].t(), e[-1])

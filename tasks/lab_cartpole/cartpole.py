@@ -56,7 +56,8 @@ class Cartpole(Task):
         self.update()  # the env asks for the reward terms' names before the first reset
 
     def update(self) -> None:
-        # Each term below reads these: computed once per step, not once per term.
+        # Each term below reads these: computed once per state (after the physics steps, after
+        # a reset), not once per term.
         self.pole_angle = wrap_angle(self._pole_pos)
         self.out_of_bounds = self._cart_pos.abs() > self.cfg.cart_bound
 
