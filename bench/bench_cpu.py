@@ -204,7 +204,8 @@ def train_peer(script: Path) -> dict:
 
 
 # Profile --------------------------------------------------------------------------------------
-TASK_PARTS = ("apply_actions", "observations", "reward_terms", "terminations", "reset", "success")
+TASK_PARTS = ("apply_actions", "update", "observations", "reward_terms", "terminations", "reset",
+              "success")
 
 
 def profile(num_envs: int, steps: int = 300) -> dict[str, float]:

@@ -65,23 +65,29 @@ class LabVecEnv(gym.vector.VectorEnv):
                 f"task '{spec.name}' computes reward terms {sorted(term_names)} but its config "
                 f"weighs {sorted(self.reward_names)}",
                 "give reward_weights exactly one entry per reward term")
-        self._weights = torch.tensor([cfg.reward_weights[k] for k in self.reward_names],
-                                     device=self.device)
+        weights = torch.tensor([cfg.reward_weights[k] for k in self.reward_names],
+                               device=self.device)
         self.termination_names = [*self.task.terminations(), UNSTABLE]
         self.generator = torch.Generator(self.device)
         self.generator.manual_seed(seed)
 
         n, dev = self.num_envs, self.device
+        k, t = len(self.reward_names), len(self.termination_names)
         self.episode_length = torch.zeros(n, dtype=torch.long, device=dev)
-        self.episode_return = torch.zeros(n, device=dev)
-        self.episode_terms = torch.zeros(n, len(self.reward_names), device=dev)
-        k = len(self.reward_names)
+        # Per-env figures are kept as rows over the envs (`[figure, num_envs]`) or tiled to the
+        # full shape: an op that broadcasts over a short last dimension steps through the envs
+        # one at a time, at 1024 envs several times the cost of one flat loop.
+        # The return and the per-term sums, a row each: one op clears or copies them all.
+        sums = self._episode_sums = torch.zeros(1 + k, n, device=dev)
+        self.episode_return, self.episode_terms = sums[0], sums[1:].t()
+        self._weights = weights.expand(n, k).contiguous()
         self._weighted = torch.empty(n, k, device=dev)
-        # One row per env, one column per figure that `pop_stats` reports (see `_accumulate`).
-        self._ended = torch.empty(n, 5 + k + len(self.termination_names), dtype=torch.float64,
-                                  device=dev)
-        self._ended_t, self._ended_done = self._ended.t(), self._ended[:, 0]
-        self._stats = torch.zeros(self._ended.shape[1], dtype=torch.float64, device=dev)
+        # One row per figure that `pop_stats` reports, one column per env (see `_accumulate`),
+        # and where each figure goes in it: views made once, each shaped like its figure.
+        self._ended = torch.empty(5 + k + t, n, dtype=torch.float64, device=dev)
+        e = self._ended
+        self._ended_figures = (e[0], e[1:2 + k], e[2 + k], e[3 + k], e[4 + k:-1].t(), e[-1])
+        self._stats = torch.zeros(len(e), dtype=torch.float64, device=dev)
         self._all = torch.ones(n, dtype=torch.bool, device=dev)
         self._renderer: SceneRenderer | None = None
         self._resume_state: dict[str, torch.Tensor] | None = None
@@ -132,6 +138,7 @@ class LabVecEnv(gym.vector.VectorEnv):
         bad_action = safe.ne(actions).any(dim=1)
         self.task.apply_actions(safe.clamp_(-1.0, 1.0))
         self.sim.step(self.cfg.decimation)
+        self.task.update()
         self.episode_length += 1
 
         causes = self.task.terminations()
@@ -196,6 +203,7 @@ class LabVecEnv(gym.vector.VectorEnv):
         for name, target in targets.items():
             target.copy_(state[name])
         self.generator.set_state(state["generator"])
+        self.task.update()
 
     def resume_from(self, state: dict[str, torch.Tensor]) -> None:
         """Make the next full `reset()` continue the saved episodes instead of starting new ones:
@@ -206,14 +214,14 @@ class LabVecEnv(gym.vector.VectorEnv):
     # statistics ------------------------------------------------------------------------------
     def _accumulate(self, done: torch.Tensor, success: torch.Tensor, terminated: torch.Tensor,
                     bad_action: torch.Tensor) -> None:
-        """Add the ended episodes' figures to the running sums: a column per figure, summed
-        over the envs weighted by `done` in one matrix-vector product, not an op per figure.
-        A non-finite action always ends its episode, so `done` weights count those too."""
-        # float32 holds lengths exactly up to 2**24 steps, far beyond any time-out.
-        ends = torch.stack((done, self.episode_return, self.episode_length, success), dim=1)
-        torch.cat((ends, self.episode_terms, terminated, bad_action[:, None]), dim=1,
-                  out=self._ended)
-        self._stats.addmv_(self._ended_t, self._ended_done)
+        """Add the ended episodes' figures to the running sums: each figure is copied into its
+        rows of one float64 matrix (no stack or cat of mixed dtypes), which are summed over the
+        envs weighted by `done` in one matrix-vector product, not an op per figure. A non-finite
+        action always ends its episode, so `done` weights count those too."""
+        figures = (done, self._episode_sums, self.episode_length, success, terminated, bad_action)
+        for rows, figure in zip(self._ended_figures, figures, strict=True):
+            rows.copy_(figure)
+        self._stats.addmv_(self._ended, self._ended_figures[0])
 
     def pop_stats(self) -> dict[str, float]:
         """Means over the episodes that ended since the last call, under `metrics` tags; empty
@@ -227,10 +235,10 @@ class LabVecEnv(gym.vector.VectorEnv):
         stats = {
             metrics.EPISODES: count,
             metrics.MEAN_RETURN: values[1] / count,
-            metrics.MEAN_LENGTH: values[2] / count,
-            metrics.SUCCESS_RATE: values[3] / count,
+            metrics.MEAN_LENGTH: values[2 + k] / count,
+            metrics.SUCCESS_RATE: values[3 + k] / count,
         }
-        for name, total in zip(self.reward_names, values[4:4 + k], strict=True):
+        for name, total in zip(self.reward_names, values[2:2 + k], strict=True):
             stats[metrics.REWARD_TERM + name] = total / count
         terminations = values[4 + k:-1]
         for name, total in zip(self.termination_names, terminations, strict=True):
@@ -243,18 +251,19 @@ class LabVecEnv(gym.vector.VectorEnv):
     def _reset_envs(self, mask: torch.Tensor) -> None:
         self.sim.reset_to_defaults(mask)
         self.task.reset(mask, self.generator)
+        self.task.update()
         self.episode_length.masked_fill_(mask, 0)
-        self.episode_return.masked_fill_(mask, 0.0)
-        self.episode_terms.masked_fill_(mask[:, None], 0.0)
+        self._episode_sums.masked_fill_(mask, 0.0)
 
     def _reward(self, unstable: torch.Tensor) -> torch.Tensor:
         """The weighted terms' sum; each weighted term also adds to its episode's total."""
         terms = self.task.reward_terms()
-        weighted = torch.stack([terms[name] for name in self.reward_names], dim=1,
-                               out=self._weighted)
-        weighted.mul_(self._weights).nan_to_num_(0.0, 0.0, 0.0)
+        rows = torch.stack([terms[name] for name in self.reward_names])  # contiguous copies
         # A diverged env's state is garbage: it earns nothing on its last step.
-        weighted.masked_fill_(unstable[:, None], 0.0)
+        rows.masked_fill_(unstable, 0.0)
+        # Cast and transposed in one copy: half the cost of stacking columns of another dtype.
+        weighted = self._weighted.copy_(rows.t())
+        weighted.mul_(self._weights).nan_to_num_(0.0, 0.0, 0.0)
         reward = weighted.sum(dim=1)
         self.episode_return += reward
         self.episode_terms += weighted

@@ -49,7 +49,12 @@ class Task:
 
     def apply_actions(self, actions: torch.Tensor) -> None:
         """Turn clipped actions in [-1, 1] into controls; the default scales them into ctrl."""
-        self.sim.ctrl.copy_(actions * self.cfg.action_scale)
+        torch.mul(actions, self.cfg.action_scale, out=self.sim.ctrl)
+
+    def update(self) -> None:
+        """Called by the env each time the sim's state changed (after the physics steps, a reset
+        or a restore), before it reads any term: compute here, once, what several terms share
+        (cartpole: the wrapped pole angle), instead of once per term. The default does nothing."""
 
     def observations(self) -> torch.Tensor:
         raise NotImplementedError

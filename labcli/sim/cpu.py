@@ -62,9 +62,11 @@ class CpuSim(Sim):
         self._ctrl = np.zeros((num_envs, model.nu))
         self._out: np.ndarray | None = None
 
-        state = torch.from_numpy(self._state)
-        self.qpos = state[:, _state_slice(model, mujoco.mjtState.mjSTATE_QPOS)]
-        self.qvel = state[:, _state_slice(model, mujoco.mjtState.mjSTATE_QVEL)]
+        # torch views of the numpy arrays, sharing their memory: MuJoCo and torch see one state.
+        self._state_t = torch.from_numpy(self._state)
+        self._default_t = torch.from_numpy(self._default)
+        self.qpos = self._state_t[:, _state_slice(model, mujoco.mjtState.mjSTATE_QPOS)]
+        self.qvel = self._state_t[:, _state_slice(model, mujoco.mjtState.mjSTATE_QVEL)]
         self.ctrl = torch.from_numpy(self._ctrl)
 
     def step(self, nstep: int) -> None:
@@ -81,9 +83,9 @@ class CpuSim(Sim):
         self._state[:] = self._out[:, -1]
 
     def reset_to_defaults(self, mask: torch.Tensor) -> None:
-        # On the numpy array under the torch views: one numpy call, where torch takes a
-        # `where` and a copy over the whole state.
-        self._state[mask.numpy()] = self._default
+        # One `where` written straight into the state (out=): faster here than numpy's
+        # boolean-mask assignment, which first finds the masked rows.
+        torch.where(mask[:, None], self._default_t, self._state_t, out=self._state_t)
 
     def close(self) -> None:
         if self._runner is not None:
