@@ -54,7 +54,9 @@ class Task:
     def update(self) -> None:
         """Called by the env each time the sim's state changed (after the physics steps, a reset
         or a restore), before it reads any term: compute here, once, what several terms share
-        (cartpole: the wrapped pole angle), instead of once per term. The default does nothing."""
+        (cartpole: the wrapped pole angle), instead of once per term. Write the results into
+        tensors made once (`out=`, in-place ops): on a GPU the env step replays as a CUDA graph,
+        which writes into the tensors it was captured with. The default does nothing."""
 
     def observations(self) -> torch.Tensor:
         raise NotImplementedError

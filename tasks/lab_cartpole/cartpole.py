@@ -29,10 +29,6 @@ class CartpoleConfig(TaskConfig):
     success_angle: float = Field(0.2, gt=0, description="radians from upright at time-out")
 
 
-def wrap_angle(angle: torch.Tensor) -> torch.Tensor:
-    return torch.remainder(angle + math.pi, 2 * math.pi) - math.pi
-
-
 class Cartpole(Task):
     cfg: CartpoleConfig
     observation_names = ["cart_pos", "pole_angle", "cart_vel", "pole_vel"]
@@ -53,13 +49,17 @@ class Cartpole(Task):
         # Views of the live state columns, taken once: indexing costs as much as an op on them.
         self._cart_pos, self._pole_pos = sim.qpos.unbind(1)
         self._cart_vel, self._pole_vel = sim.qvel.unbind(1)
+        self.pole_angle = torch.empty_like(self._pole_pos)  # wrapped to [-pi, pi)
+        self.out_of_bounds = torch.empty_like(self._cart_pos, dtype=torch.bool)
         self.update()  # the env asks for the reward terms' names before the first reset
 
     def update(self) -> None:
         # Each term below reads these: computed once per state (after the physics steps, after
-        # a reset), not once per term.
-        self.pole_angle = wrap_angle(self._pole_pos)
-        self.out_of_bounds = self._cart_pos.abs() > self.cfg.cart_bound
+        # a reset), not once per term. In place: a step replayed as a CUDA graph writes into
+        # the tensors it was captured with, which a rebound attribute would no longer be.
+        torch.add(self._pole_pos, math.pi, out=self.pole_angle).remainder_(2 * math.pi)
+        self.pole_angle.sub_(math.pi)
+        torch.gt(self._cart_pos.abs(), self.cfg.cart_bound, out=self.out_of_bounds)
 
     def observations(self) -> torch.Tensor:
         return torch.stack((self._cart_pos, self.pole_angle, self._cart_vel, self._pole_vel),
