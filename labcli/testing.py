@@ -34,7 +34,10 @@ SHORT_EPISODE = "env.episode_length_s=0.1"
 # The built-in frameworks at the smallest sizes that still run every code path: a few seconds of
 # training for tests that exercise the machinery around learning, not the learning.
 SMALL_AGENTS = {
-    "sb3": ["agent.n_steps=8", "agent.batch_size=16", "agent.n_epochs=2", "agent.net_arch=[16]"],
+    # VecNormalize on, whatever the task's default: its statistics are what checkpoints, resume
+    # and export most easily get wrong.
+    "sb3": ["agent.n_steps=8", "agent.batch_size=16", "agent.n_epochs=2", "agent.net_arch=[16]",
+            "agent.normalize_obs=true"],
     "rsl_rl": ["agent.num_steps_per_env=8", "agent.num_learning_epochs=2",
                "agent.num_mini_batches=2", "agent.actor_hidden_dims=[16]",
                "agent.critic_hidden_dims=[16]"],

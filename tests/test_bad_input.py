@@ -26,7 +26,8 @@ from labcli.errors import LabError
 from labcli.hookspecs import hookimpl
 
 SMALL = ["--num-envs", "4", "--max-iterations", "1", "--set", "agent.n_steps=8",
-         "--set", "agent.batch_size=16", "--set", "agent.n_epochs=1"]
+         "--set", "agent.batch_size=16", "--set", "agent.n_epochs=1",
+         "--set", "agent.normalize_obs=true"]
 
 
 def lab(*args: str, logs: Path):

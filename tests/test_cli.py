@@ -17,7 +17,8 @@ from labcli import __version__
 from labcli.cli import app
 
 SMALL = ["--num-envs", "4", "--max-iterations", "2", "--set", "agent.n_steps=8",
-         "--set", "agent.batch_size=16", "--set", "agent.n_epochs=1"]
+         "--set", "agent.batch_size=16", "--set", "agent.n_epochs=1",
+         "--set", "agent.normalize_obs=true"]
 
 
 def lab(*args: str, logs: Path) -> object:

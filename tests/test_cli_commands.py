@@ -19,7 +19,8 @@ from typer.testing import CliRunner
 from labcli.cli import app
 
 SMALL = ["--num-envs", "4", "--max-iterations", "2", "--set", "agent.n_steps=8",
-         "--set", "agent.batch_size=16", "--set", "agent.n_epochs=1"]
+         "--set", "agent.batch_size=16", "--set", "agent.n_epochs=1",
+         "--set", "agent.normalize_obs=true"]
 HEADLESS = {"DISPLAY": None, "WAYLAND_DISPLAY": None}
 
 

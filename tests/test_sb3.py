@@ -26,8 +26,9 @@ from labcli.framework import ObsNormalizer
 NUM_ENVS = 4
 N_STEPS = 8
 PER_ITERATION = NUM_ENVS * N_STEPS
+# VecNormalize on (SB3's default; cartpole's own sb3 defaults turn it off).
 SMALL = [f"agent.n_steps={N_STEPS}", "agent.batch_size=16", "agent.n_epochs=2",
-         "agent.net_arch=[16,16]"]
+         "agent.net_arch=[16,16]", "agent.normalize_obs=true"]
 
 
 make_env = testing.make_env
@@ -39,7 +40,7 @@ def train(tmp_path: Path, iterations: int, sets: list[str] = (), **kwargs) -> tr
 
 @pytest.fixture(scope="module")
 def trained(tmp_path_factory) -> training.TrainOutcome:
-    """One short run with VecNormalize on (the default), shared by read-only tests."""
+    """One short run with VecNormalize on, shared by read-only tests."""
     return train(tmp_path_factory.mktemp("logs"), 3, ["agent.save_interval=2"])
 
 

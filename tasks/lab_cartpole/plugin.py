@@ -18,7 +18,10 @@ def register_tasks(register):
             "sb3": {"env": {"num_envs": 128}, "agent": {
                 "max_iterations": 170, "n_steps": 32, "batch_size": 1024, "n_epochs": 20,
                 "learning_rate": 5e-4, "activation": "elu", "vf_coef": 1.0,
-                "max_grad_norm": 1.0}},
+                "max_grad_norm": 1.0,
+                # Cartpole's observations are O(1) already; VecNormalize's moving statistics
+                # left seed 0 at 3% success on one CPU model, 97% without (seeds 0-2: 95-97%).
+                "normalize_obs": False}},
             "rsl_rl": {"env": {"num_envs": 128}, "agent": {
                 "max_iterations": 200, "num_steps_per_env": 32, "num_learning_epochs": 8,
                 "num_mini_batches": 8, "desired_kl": 0.005, "entropy_coef": 0.0,
