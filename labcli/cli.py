@@ -13,6 +13,7 @@ from typing import Annotated, Any
 
 import typer
 from rich.console import Console
+from rich.markup import escape
 from rich.table import Column, Table, box
 
 from labcli import (
@@ -83,7 +84,10 @@ def command(*args: Any, group: typer.Typer = app, **kwargs: Any) -> Callable:
             try:
                 return fn(*a, **kw)
             except LabError as exc:
-                err.print(f"[bold red]error:[/] {exc}", highlight=False, soft_wrap=True)
+                # Escaped: messages quote user input and hints such as '.[warp]', which rich
+                # would otherwise take for markup and drop.
+                err.print(f"[bold red]error:[/] {escape(str(exc))}", highlight=False,
+                          soft_wrap=True)
                 raise typer.Exit(exc.exit_code) from None
 
         return group.command(*args, **kwargs)(run)

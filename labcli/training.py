@@ -367,7 +367,7 @@ def _train(stop: interrupt.StopRequest, task: str, framework: str, *, num_envs: 
     fw = plugins.get_framework(framework)
     for failure in plugins.registry().failures:  # what they provide is missing: say so
         console.print(f"warning: plugin '{failure.plugin}' ({failure.provider}) failed to load: "
-                      f"{failure.error}", highlight=False, soft_wrap=True)
+                      f"{failure.error}", highlight=False, soft_wrap=True, markup=False)
     device = check_device(device, backend)
     if num_envs is not None and num_envs <= 0:
         raise LabError(f"--num-envs must be a positive integer, got {num_envs}")

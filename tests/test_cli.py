@@ -106,6 +106,9 @@ BAD = {
     "export with no runs": (["export", "onnx"], ["no runs found"]),
     "play a missing run": (["play", "--run", "nowhere"], ["does not exist"]),
     "play zero envs": (["play", "--num-envs", "0"], ["--num-envs", "positive"]),
+    # Square brackets in a message are text, not rich markup to be dropped.
+    "brackets in the message": (["train", "--task", "cartpole", "--framework", "sb3", "--set",
+                                 "agent.activation=elu[warp]"], ["elu[warp]"]),
 }
 
 
