@@ -183,10 +183,11 @@ def train(
         figures.append(f"mean return {s['mean_return']:.1f}")
     if s["success_rate"] is not None:
         figures.append(f"success {s['success_rate']:.0%}")
-    out.print(f"{outcome.run.dir}: " + ", ".join(figures), highlight=False, soft_wrap=True)
+    out.print(f"{outcome.run.dir}: " + ", ".join(figures), highlight=False, soft_wrap=True,
+              markup=False)
     if settings is not None:
         folder = videos.folder(outcome.run.dir, videos.TRAIN)
-        out.print(f"videos: {folder}", highlight=False, soft_wrap=True)
+        out.print(f"videos: {folder}", highlight=False, soft_wrap=True, markup=False)
     if s["state"] == "interrupted":
         raise typer.Exit(128 + int(s.get("signal", signal.SIGINT)))
 
@@ -247,9 +248,9 @@ def _print_episodes(eps: play.Episodes, title: str, has_success: bool) -> None:
     ended = ", ".join(f"{cause} {count}" for cause, count in causes.most_common())
     success = f"success rate {eps.success_rate:.0%}" if has_success else "no success criterion"
     out.print(f"{len(eps.returns)} episodes: mean return {eps.mean_return:.1f}, {success}; "
-              f"ended by {ended}", highlight=False, soft_wrap=True)
+              f"ended by {ended}", highlight=False, soft_wrap=True, markup=False)
     for path in eps.videos:
-        out.print(f"video: {path}", highlight=False, soft_wrap=True)
+        out.print(f"video: {path}", highlight=False, soft_wrap=True, markup=False)
 
 
 @command("export")
@@ -270,7 +271,7 @@ def export_command(
                            framework=framework, logs_dir=logs_dir)
     out.print(f"wrote {result.path} and {result.metadata.name}; max abs difference from torch "
               f"{result.max_abs_diff:.2e} over {result.checked} observations", highlight=False,
-              soft_wrap=True)
+              soft_wrap=True, markup=False)
 
 
 @command("bench")
@@ -367,9 +368,10 @@ def plot_command(
                             framework=framework)
     result = plots.plot(selected, metric, output)
     for run in result.skipped:
-        err.print(f"note: {run.dir} has no '{metric}' yet; left out", highlight=False)
+        err.print(f"note: {run.dir} has no '{metric}' yet; left out", highlight=False,
+                  markup=False)
     out.print(f"wrote {result.path}: {metric} of {len(result.plotted)} run(s)", highlight=False,
-              soft_wrap=True)
+              soft_wrap=True, markup=False)
 
 
 @command("show", group=config_app)

@@ -59,6 +59,13 @@ def test_train_writes_the_run_dir_and_prints_a_summary(logs):
     assert manifest["task"] == "cartpole" and manifest["num_envs"] == 4
 
 
+def test_a_run_name_with_brackets_is_printed_as_it_is(tmp_path):
+    result = lab("train", "--task", "cartpole", "--framework", "sb3", *SMALL, "--run-name",
+                 "a[bold]b", logs=tmp_path)
+    assert result.exit_code == 0, result.output
+    assert "_a[bold]b: finished" in result.stdout
+
+
 def test_play_last_prints_episodes_and_success_rate(logs):
     result = lab("play", "--last", "--episodes", "3", logs=logs)
     assert result.exit_code == 0, result.output
