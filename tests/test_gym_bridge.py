@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import io
 import json
+from contextlib import closing
 
 import numpy as np
 import onnxruntime as ort
@@ -34,8 +35,7 @@ def make(num_envs: int = 4, **cfg) -> GymVecEnv:
 
 
 def test_steps_like_a_lab_env():
-    env = make(max_episode_steps=3)
-    try:
+    with closing(make(max_episode_steps=3)) as env:
         assert env.single_action_space.shape == (1,) and env.single_observation_space.shape == (4,)
         obs, _ = env.reset(seed=0)
         assert isinstance(obs, torch.Tensor) and obs.shape == (4, 4) and obs.dtype == torch.float32
@@ -51,24 +51,18 @@ def test_steps_like_a_lab_env():
         assert stats[metrics.EPISODES] == 4 and stats[metrics.MEAN_RETURN] == 3.0
         assert stats[metrics.SUCCESS_RATE] == 0.0  # below InvertedPendulum's threshold of 950
         assert env.pop_stats() == {}
-    finally:
-        env.close()
 
 
 def test_actions_in_minus_one_one_span_the_action_space():
-    env = make(num_envs=2)
-    try:
+    with closing(make(num_envs=2)) as env:
         env.reset(seed=0)
         env.step(torch.tensor([[1.0], [-0.5]]))
         ctrl = [sub.unwrapped.data.ctrl[0] for sub in env._vec.envs]
         assert ctrl == pytest.approx([3.0, -1.5])  # InvertedPendulum's bounds are ±3
-    finally:
-        env.close()
 
 
 def test_terminations_are_not_time_outs():
-    env = make(num_envs=2)
-    try:
+    with closing(make(num_envs=2)) as env:
         env.reset(seed=0)
         for _ in range(200):
             _, _, terminated, truncated, info = env.step(torch.ones(2, 1))
@@ -76,8 +70,6 @@ def test_terminations_are_not_time_outs():
                 break
         assert terminated.any() and not truncated.any()
         assert info["terminations"][terminated].all()
-    finally:
-        env.close()
 
 
 @pytest.mark.parametrize("framework", ["sb3", "rsl_rl", "skrl"])
