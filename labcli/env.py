@@ -31,7 +31,7 @@ class LabVecEnv(gym.vector.VectorEnv):
     render_mode = "rgb_array"  # env 0, see `render`
 
     def __init__(self, spec: TaskSpec, cfg: TaskConfig, *, backend: str | None = None,
-                 device: str = "cpu", seed: int = 0, nthread: int | None = None):
+                 device: str = "cpu", seed: int = 0):
         self.task_spec = spec
         self.cfg = cfg
         model = mujoco.MjModel.from_xml_path(str(spec.model))
@@ -45,7 +45,7 @@ class LabVecEnv(gym.vector.VectorEnv):
         # Rounded first: 0.14 / 0.02 is 7.000000000000001, which must be 7 steps, not 8.
         self.max_episode_length = math.ceil(round(steps, 9))
         self.backend = backend or default_backend(device)
-        self.sim = make_sim(self.backend, model, cfg.num_envs, device, nthread)
+        self.sim = make_sim(self.backend, model, cfg.num_envs, device, cfg.threads)
         self.task = spec.task(cfg, self.sim)
         self.num_envs = cfg.num_envs
         self.device = self.sim.device

@@ -33,6 +33,8 @@ class TaskConfig(BaseModel):
     sim_dt: float | None = Field(None, gt=0, description="physics step; None keeps the MJCF's")
     action_scale: float = Field(1.0, description="policy action in [-1, 1] times this is ctrl")
     reward_weights: dict[str, float] = Field(default_factory=dict)
+    threads: int | None = Field(None, gt=0, le=4096, description="cpu backend: threads that "
+                                "step the physics (None: the cores this process may use)")
     cuda_graph: bool = Field(True, description="on a GPU, replay each env step as one CUDA graph "
                              "(false: step eagerly, for debugging a task)")
 

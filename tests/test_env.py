@@ -4,7 +4,9 @@ bad actions and diverged physics, and the batched stepping through mujoco.rollou
 
 from __future__ import annotations
 
+import gc
 import math
+import threading
 from collections.abc import Callable, Iterator
 
 import gymnasium as gym
@@ -292,8 +294,8 @@ def test_sim_dt_overrides_the_models_timestep(make_env):
     assert env.step_dt == pytest.approx(0.015)
 
 
-def test_cpu_backend_steps_all_envs_in_one_rollout_call(make_env, monkeypatch):
-    env = make_env()
+def test_cpu_backend_steps_every_env_once_per_step_in_rollout_calls(make_env, monkeypatch):
+    env = make_env(threads=2)
     env.reset(seed=0)
     calls: list[int] = []
     original = rollout.Rollout.rollout
@@ -309,7 +311,58 @@ def test_cpu_backend_steps_all_envs_in_one_rollout_call(make_env, monkeypatch):
     monkeypatch.setattr(mujoco, "mj_step", no_python_stepping)
     for action in random_actions(3):
         env.step(action)
-    assert calls == [NUM_ENVS] * 3
+        # One call on the calling thread, one on the worker thread: every env exactly once.
+        assert len(calls) == 2 and sum(calls) == NUM_ENVS and min(calls) > 0
+        calls.clear()
+
+
+@pytest.mark.parametrize("threads", [2, 3, 16])
+def test_the_thread_count_does_not_change_a_trajectory(make_env, threads):
+    # Short episodes: resets are part of it. 16 threads for 8 envs: one env per thread at most.
+    actions = random_actions(40)
+    one = rollout_of(make_env(seed=3, threads=1, episode_length_s=6 * STEP_DT), actions)
+    many_env = make_env(seed=3, threads=threads, episode_length_s=6 * STEP_DT)
+    many = rollout_of(many_env, actions)
+    for key in one:
+        torch.testing.assert_close(many[key], one[key], rtol=0, atol=0)
+    assert many_env.sim.nthread == min(threads, NUM_ENVS)
+
+
+def test_an_error_on_the_physics_thread_reaches_the_caller(make_env, monkeypatch):
+    env = make_env(threads=2)
+    env.reset(seed=0)
+    theirs = env.sim._theirs
+    monkeypatch.setattr(theirs, "rollout", lambda *a, **k: 1 / 0)
+    with pytest.raises(ZeroDivisionError):
+        env.step(zeros())
+    monkeypatch.undo()  # the thread survived its job's error and steps again
+    before = env.sim.qpos.clone()
+    env.step(torch.ones(NUM_ENVS, ACT))
+    assert env.sim.qpos[:, CART].gt(before[:, CART]).all()
+
+
+def physics_threads() -> int:
+    return sum(t.name == "lab-physics" for t in threading.enumerate())
+
+
+def test_the_physics_thread_ends_with_its_env(make_env):
+    before = physics_threads()
+    env = make_env(threads=2)
+    env.step(zeros())
+    assert physics_threads() == before + 1
+    env.close()
+    env.close()  # twice is harmless
+    assert physics_threads() == before
+    with pytest.raises(RuntimeError):  # not a hang
+        env.step(zeros())
+    # An env never closed lets its thread go when it is collected.
+    spec = plugins.get_task("cartpole")
+    unclosed = LabVecEnv(spec, spec.config(num_envs=4, threads=2), backend="cpu")
+    unclosed.step(torch.zeros(4, ACT))
+    assert physics_threads() == before + 1
+    del unclosed
+    gc.collect()
+    assert physics_threads() == before
 
 
 # Seeding and resets ----------------------------------------------------------------------------
