@@ -45,6 +45,9 @@ class Cartpole(Task):
         low, width = ranges[:, 0], ranges[:, 1] - ranges[:, 0]
         self._reset_low, self._reset_width = (x.expand(sim.num_envs, 4).contiguous()
                                               for x in (low, width))
+        # Drawn into each step: no allocation, and its position and velocity halves are views.
+        self._sample = torch.empty_like(self._reset_low)
+        self._sample_pos, self._sample_vel = self._sample.split(2, dim=1)
         self._ones = torch.ones_like(sim.qpos[:, 0])  # the "alive" term; the env only reads it
         # Views of the live state columns, taken once: indexing costs as much as an op on them.
         self._cart_pos, self._pole_pos = sim.qpos.unbind(1)
@@ -80,13 +83,12 @@ class Cartpole(Task):
         return {"cart_out_of_bounds": self.out_of_bounds}
 
     def reset(self, mask: torch.Tensor, generator: torch.Generator) -> None:
-        u = torch.rand(mask.shape[0], 4, generator=generator, device=mask.device,
-                       dtype=self._reset_low.dtype)
-        pos, vel = (self._reset_low + u * self._reset_width).split(2, dim=1)
+        u = torch.rand(self._sample.shape, generator=generator, out=self._sample)
+        torch.addcmul(self._reset_low, u, self._reset_width, out=self._sample)
         m = mask[:, None]
         # In place (out= is the state itself): no temporary state and no copy back.
-        torch.where(m, pos, self.sim.qpos, out=self.sim.qpos)
-        torch.where(m, vel, self.sim.qvel, out=self.sim.qvel)
+        torch.where(m, self._sample_pos, self.sim.qpos, out=self.sim.qpos)
+        torch.where(m, self._sample_vel, self.sim.qvel, out=self.sim.qvel)
 
     def success(self, time_out: torch.Tensor) -> torch.Tensor:
         # Only time-outs are judged, and leaving the rail ends an episode before its time-out:
