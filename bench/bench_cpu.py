@@ -44,6 +44,7 @@ from rich.table import Table
 from labcli import plugins
 from labcli.bench import env_rate, rate, time_to_success
 from labcli.env import LabVecEnv
+from labcli.framework import one_torch_thread
 
 REPO = Path(__file__).resolve().parents[1]
 TASK = "cartpole"
@@ -169,9 +170,10 @@ def adapter_rates(seconds: float, repeats: int) -> dict[str, float]:
     env.reset(seed=0)
     steppers = adapter_steppers(env)
     runs: dict[str, list[float]] = defaultdict(list)
-    for _ in range(repeats):
-        for name, step in steppers.items():
-            runs[name].append(rate(step, seconds))
+    with one_torch_thread("cpu"):  # as lab's learners step their envs
+        for _ in range(repeats):
+            for name, step in steppers.items():
+                runs[name].append(rate(step, seconds))
     env.close()
     return {name: statistics.median(values) for name, values in runs.items()}
 

@@ -15,6 +15,7 @@ from rich.console import Console
 from labcli import metrics, plugins, training
 from labcli.env import LabVecEnv
 from labcli.errors import LabError
+from labcli.framework import one_torch_thread
 
 TRAIN_ITERATIONS = 5
 
@@ -46,7 +47,9 @@ def rate(step: Callable[[], int], seconds: float, sync: Callable[[], None] = lam
 
 
 def env_rate(env: LabVecEnv, seconds: float) -> float:
-    """The env as a learner sees it: uniform random actions in, torch tensors out."""
+    """The env as a learner sees it: uniform random actions in, torch tensors out, and on the
+    CPU one torch thread, as lab's learners run it (`one_torch_thread`). Measured on 16 cores
+    at 4,096 cartpole envs: 293k env-steps/s with torch's 16 threads, 699k with one."""
     env.reset(seed=0)
     gen = torch.Generator(env.device).manual_seed(0)
     shape = (env.num_envs, env.single_action_space.shape[0])
@@ -56,7 +59,8 @@ def env_rate(env: LabVecEnv, seconds: float) -> float:
         return env.num_envs
 
     sync = torch.cuda.synchronize if env.device.type == "cuda" else (lambda: None)
-    return rate(step, seconds, sync)
+    with one_torch_thread(str(env.device)):
+        return rate(step, seconds, sync)
 
 
 def train_rate(task: str, framework: str, num_envs: int, backend: str | None,

@@ -91,14 +91,16 @@ class _Worker:
 
 class CpuSim(Sim):
     """The state of all envs is one numpy array (torch views of it are `qpos`, `qvel`); each step
-    is one `mujoco.rollout` of `nstep` physics steps from it, split between the calling thread
-    and the others.
+    is one `mujoco.rollout` of `nstep` physics steps from it.
 
-    The calling thread steps envs too, rather than sleeping while MuJoCo's pool steps them all:
-    a pool wakes its threads and then the caller each step, and on a VM such wake-ups are slow
-    and uneven (cartpole, 256 envs, 2 cores: `sim.step` took 495–538 µs on average with the
-    pool, 90th percentile 519–881 µs; 474–476 µs and 506–511 µs this way). Which share of the
-    envs it steps is balanced each step (see `step`)."""
+    On two threads, the calling thread steps a share of the envs itself beside one worker thread,
+    rather than sleeping while MuJoCo's pool steps them all: a pool wakes its threads and then
+    the caller each step, and on a VM such wake-ups are slow and uneven (cartpole, 256 envs, 2
+    cores: `sim.step` took 495–538 µs on average with the pool, 90th percentile 519–881 µs;
+    474–476 µs and 506–511 µs this way). The share is balanced each step (see `step`). On more
+    threads MuJoCo's pool steps all envs: handing the others' share on to a pool from the worker
+    thread adds a hop of its own, and one caller's share matters less (16 cores: the pool alone
+    was 3–15% faster at 1,024 and 4,096 envs; at 4 and 8 threads mixed, 0.85–1.23 of it)."""
 
     def __init__(self, model: mujoco.MjModel, num_envs: int, nthread: int | None = None):
         # MuJoCo's own reset of a diverged state would hide it from `Sim.unstable()`: lab resets
@@ -111,19 +113,22 @@ class CpuSim(Sim):
         self.device = torch.device("cpu")
         self.nthread = min(nthread or _cores(), num_envs)
         self._models = [model] * num_envs
-        self._mine = rollout.Rollout(nthread=0)  # on the calling thread
-        self._my_data = [mujoco.MjData(model)]
-        others = self.nthread - 1
-        # The other threads' envs go to one worker thread: it steps them itself, or hands them
-        # to MuJoCo's pool when there are several threads for them.
-        self._theirs = rollout.Rollout(nthread=others if others > 1 else 0)
-        self._their_data = [mujoco.MjData(model) for _ in range(max(others, 1))]
-        self._worker = _Worker("lab-physics") if others else None
-        # The worker's thread stops when the sim is closed, or collected unclosed.
-        self._stop_worker = weakref.finalize(self, self._worker.close) if others else None
-        # Envs [0, split) are the calling thread's: one thread's share to start with.
-        self._split = num_envs // self.nthread if others else num_envs
-        self._balance_step = max(1, num_envs // 128)
+        pool = self.nthread if self.nthread > 2 else 0  # 0: on the calling thread
+        self._mine = rollout.Rollout(nthread=pool)
+        self._my_data = [mujoco.MjData(model) for _ in range(max(pool, 1))]
+        # Envs [0, split) are the calling thread's, the rest the worker thread's.
+        self._split = num_envs
+        self._theirs: rollout.Rollout | None = None
+        self._worker: _Worker | None = None
+        self._stop_worker = None
+        if self.nthread == 2:
+            self._theirs = rollout.Rollout(nthread=0)
+            self._their_data = [mujoco.MjData(model)]
+            self._worker = _Worker("lab-physics")
+            # The worker's thread stops when the sim is closed, or collected unclosed.
+            self._stop_worker = weakref.finalize(self, self._worker.close)
+            self._split = num_envs // 2
+            self._balance_step = max(1, num_envs // 128)
 
         data = self._my_data[0]
         mujoco.mj_resetData(model, data)
@@ -187,5 +192,5 @@ class CpuSim(Sim):
             self._stop_worker()  # a finalizer runs once: closing twice is harmless
         self._worker = None  # a step after close then fails in the closed rollout, not hangs
         for runner in (self._mine, self._theirs):
-            if runner.rollout_ is not None:
+            if runner is not None and runner.rollout_ is not None:
                 runner.close()
