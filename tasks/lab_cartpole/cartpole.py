@@ -84,7 +84,8 @@ class Cartpole(Task):
 
     def reset(self, mask: torch.Tensor, generator: torch.Generator) -> None:
         u = torch.rand(self._sample.shape, generator=generator, out=self._sample)
-        torch.addcmul(self._reset_low, u, self._reset_width, out=self._sample)
+        # Not addcmul: its fused multiply-add rounds differently, and seeded runs would change.
+        u.mul_(self._reset_width).add_(self._reset_low)
         m = mask[:, None]
         # In place (out= is the state itself): no temporary state and no copy back.
         torch.where(m, self._sample_pos, self.sim.qpos, out=self.sim.qpos)
