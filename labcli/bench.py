@@ -28,6 +28,7 @@ class BenchRow:
     env_steps_per_s: float
     framework: str | None = None
     train_steps_per_s: float | None = None
+    threads: int | None = None  # the cpu backend's physics threads
 
     def as_dict(self) -> dict:
         return asdict(self)
@@ -64,11 +65,12 @@ def env_rate(env: LabVecEnv, seconds: float) -> float:
 
 
 def train_rate(task: str, framework: str, num_envs: int, backend: str | None,
-               device: str) -> float:
+               device: str, overrides: Sequence[str] = ()) -> float:
     """Steps/s of a short training run (collection and updates) in a throwaway logs dir."""
     with tempfile.TemporaryDirectory(prefix="lab_bench_") as logs:
         outcome = training.train(task, framework, num_envs=num_envs, device=device,
                                  backend=backend, max_iterations=TRAIN_ITERATIONS,
+                                 overrides=overrides,
                                  logs_dir=Path(logs), console=Console(file=io.StringIO()),
                                  command=["lab", "bench"])
     return outcome.summary["steps"] / max(outcome.summary["wall_time_s"], 1e-9)
@@ -92,7 +94,7 @@ def time_to_success(run_dir: Path, threshold: float) -> tuple[float, int] | None
 
 def bench(task: str, num_envs: Sequence[int], *, backend: str | None = None,
           device: str | None = None, framework: str | None = None,
-          seconds: float = 3.0) -> list[BenchRow]:
+          seconds: float = 3.0, threads: int | None = None) -> list[BenchRow]:
     spec = plugins.get_task(task)
     if framework is not None:
         plugins.get_framework(framework)  # an unknown name fails before any measuring
@@ -100,15 +102,21 @@ def bench(task: str, num_envs: Sequence[int], *, backend: str | None = None,
     if not num_envs or any(n <= 0 for n in num_envs):
         raise LabError(f"--num-envs must be positive integers, got {list(num_envs)}",
                        "e.g. --num-envs 16,256,1024")
+    if threads is not None and threads <= 0:
+        raise LabError(f"--threads must be a positive integer, got {threads}",
+                       "leave it out to use the cores this process may use")
+    overrides = [f"env.threads={threads}"] if threads is not None else []
     rows = []
     for n in num_envs:
-        env = LabVecEnv(spec, spec.config(num_envs=n), backend=backend, device=device)
+        env = LabVecEnv(spec, spec.config(num_envs=n, threads=threads), backend=backend,
+                        device=device)
         try:
-            row = BenchRow(task, env.backend, n, env_rate(env, seconds))
+            row = BenchRow(task, env.backend, n, env_rate(env, seconds),
+                           threads=getattr(env.sim, "nthread", None))
         finally:
             env.close()
         if framework is not None:
             row.framework = framework
-            row.train_steps_per_s = train_rate(task, framework, n, backend, device)
+            row.train_steps_per_s = train_rate(task, framework, n, backend, device, overrides)
         rows.append(row)
     return rows

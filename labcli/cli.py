@@ -285,6 +285,9 @@ def bench_command(
     framework: Annotated[str | None, typer.Option(
         "--framework", "-f", help="Also time a short training run with this framework.")] = None,
     seconds: Annotated[float, typer.Option(help="Seconds per measurement.")] = 3.0,
+    threads: Annotated[int | None, typer.Option(
+        help="cpu backend: threads that step the physics [the cores this process may use].")
+    ] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON instead of a table.")] = False,
 ) -> None:
     """Measure env-steps/s of a task (random actions, resets included) and, with --framework,
@@ -298,16 +301,17 @@ def bench_command(
         raise LabError(f"--num-envs '{num_envs}' is not a list of integers",
                        "e.g. --num-envs 16,256,1024") from None
     rows = bench.bench(task, counts, backend=backend, device=device, framework=framework,
-                       seconds=seconds)
+                       seconds=seconds, threads=threads)
     if as_json:
         out.print_json(json.dumps([row.as_dict() for row in rows]))
         return
-    columns = ["task", "backend", "envs", "env-steps/s"]
+    columns = ["task", "backend", "threads", "envs", "env-steps/s"]
     if framework:
         columns += ["framework", "training steps/s"]
     table = _table(*columns, title="lab bench")
     for row in rows:
-        cells = [row.task, row.backend, str(row.num_envs), f"{row.env_steps_per_s:,.0f}"]
+        cells = [row.task, row.backend, str(row.threads or "-"), str(row.num_envs),
+                 f"{row.env_steps_per_s:,.0f}"]
         if framework:
             cells += [row.framework, f"{row.train_steps_per_s:,.0f}"]
         table.add_row(*cells)

@@ -162,6 +162,16 @@ def test_bench_prints_env_and_training_rates_as_json(tmp_path):
     assert not (tmp_path / "logs").exists()  # the training runs are thrown away
 
 
+def test_bench_threads_sets_the_cpu_backends_physics_threads(tmp_path):
+    result = lab("bench", "--task", "cartpole", "--num-envs", "4", "--seconds", "0.1",
+                 "--threads", "1", "--json", logs=tmp_path)
+    assert result.exit_code == 0, result.output
+    (row,) = json.loads(result.stdout)
+    assert row["threads"] == 1 and row["env_steps_per_s"] > 0
+    bad = lab("bench", "--task", "cartpole", "--threads", "0", logs=tmp_path)
+    assert bad.exit_code == 2 and bad.stderr.startswith("error: --threads must be a positive")
+
+
 @pytest.mark.parametrize("counts", ["0", "4,x", ""])
 def test_bench_rejects_bad_env_counts(tmp_path, counts):
     result = lab("bench", "--task", "cartpole", "--num-envs", counts, logs=tmp_path)
