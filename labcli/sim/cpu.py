@@ -1,5 +1,5 @@
-"""CPU backend: MuJoCo's C engine steps the envs with `mujoco.rollout`, the calling thread
-stepping its share of them beside the other threads."""
+"""CPU backend: MuJoCo's C engine steps the envs with `mujoco.rollout`: on two threads the
+calling thread and one worker thread, each its share of them; on more, MuJoCo's thread pool."""
 
 from __future__ import annotations
 
@@ -178,6 +178,9 @@ class CpuSim(Sim):
     def _roll(self, runner: rollout.Rollout, datas: list[mujoco.MjData], start: int, stop: int,
               nstep: int) -> None:
         envs = slice(start, stop)
+        # One chunk of envs per thread: rollout's default, ten per thread, balances the load
+        # but costs more in handing out chunks than it saves (at 64 cartpole envs on 2 cores,
+        # the pool's cost over stepping on the calling thread fell from +360 to +60 µs).
         runner.rollout(self._models[envs], datas, self._state[envs], self._ctrl_steps[envs],
                        nstep=nstep, state=self._out[envs], sensordata=self._sensors[envs],
                        skip_checks=True, chunk_size=-(-(stop - start) // len(datas)))
@@ -192,5 +195,5 @@ class CpuSim(Sim):
             self._stop_worker()  # a finalizer runs once: closing twice is harmless
         self._worker = None  # a step after close then fails in the closed rollout, not hangs
         for runner in (self._mine, self._theirs):
-            if runner is not None and runner.rollout_ is not None:
+            if runner is not None:
                 runner.close()
