@@ -34,11 +34,11 @@ def start(logs: Path, *args: str) -> subprocess.Popen:
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
 
-def wait_for(condition, timeout: float = 60.0) -> None:
+def wait_for(condition, timeout: float = 60.0, interval: float = 0.05) -> None:
     deadline = time.monotonic() + timeout
     while not condition():
         assert time.monotonic() < deadline, "timed out waiting"
-        time.sleep(0.05)
+        time.sleep(interval)
 
 
 def run_dirs(logs: Path) -> list[Path]:
@@ -106,7 +106,10 @@ def test_a_signal_during_start_up_leaves_a_consistent_run(tmp_path):
     logs = tmp_path / "logs"
     proc = start(logs, *ENDLESS)
     try:
-        wait_for(lambda: bool(run_dirs(logs)))
+        # The run dir itself, polled every 2 ms: its manifest is written later, and iterations
+        # take milliseconds once training runs, so a slower poll would often signal a run that
+        # had left start-up (seen: 2 iterations done, 1 in 20 runs).
+        wait_for(lambda: any(logs.glob("sb3/cartpole/*")), interval=0.002)
         code, err, took = stop(proc, signal.SIGINT)
     finally:
         proc.kill()
