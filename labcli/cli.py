@@ -13,8 +13,8 @@ from typing import Annotated, Any
 
 import typer
 from rich.console import Console
-from rich.markup import escape
 from rich.table import Column, Table, box
+from rich.text import Text
 
 from labcli import (
     __version__,
@@ -42,8 +42,10 @@ config_app = typer.Typer(
     help="Look at resolved configs.\n\nExample: lab config show --task cartpole --framework sb3",
     no_args_is_help=True)
 app.add_typer(config_app, name="config")
-out = Console()
-err = Console(stderr=True)
+# No markup: what lab prints quotes run dirs, paths and user input, in which rich would take
+# '[...]' for markup and drop it ('.[warp]', a run named 'a[bold]b').
+out = Console(markup=False)
+err = Console(stderr=True, markup=False)
 
 
 def complete_task(incomplete: str) -> list[str]:
@@ -84,9 +86,7 @@ def command(*args: Any, group: typer.Typer = app, **kwargs: Any) -> Callable:
             try:
                 return fn(*a, **kw)
             except LabError as exc:
-                # Escaped: messages quote user input and hints such as '.[warp]', which rich
-                # would otherwise take for markup and drop.
-                err.print(f"[bold red]error:[/] {escape(str(exc))}", highlight=False,
+                err.print(Text.assemble(("error:", "bold red"), f" {exc}"), highlight=False,
                           soft_wrap=True)
                 raise typer.Exit(exc.exit_code) from None
 
@@ -183,11 +183,10 @@ def train(
         figures.append(f"mean return {s['mean_return']:.1f}")
     if s["success_rate"] is not None:
         figures.append(f"success {s['success_rate']:.0%}")
-    out.print(f"{outcome.run.dir}: " + ", ".join(figures), highlight=False, soft_wrap=True,
-              markup=False)
+    out.print(f"{outcome.run.dir}: " + ", ".join(figures), highlight=False, soft_wrap=True)
     if settings is not None:
         folder = videos.folder(outcome.run.dir, videos.TRAIN)
-        out.print(f"videos: {folder}", highlight=False, soft_wrap=True, markup=False)
+        out.print(f"videos: {folder}", highlight=False, soft_wrap=True)
     if s["state"] == "interrupted":
         raise typer.Exit(128 + int(s.get("signal", signal.SIGINT)))
 
@@ -248,9 +247,9 @@ def _print_episodes(eps: play.Episodes, title: str, has_success: bool) -> None:
     ended = ", ".join(f"{cause} {count}" for cause, count in causes.most_common())
     success = f"success rate {eps.success_rate:.0%}" if has_success else "no success criterion"
     out.print(f"{len(eps.returns)} episodes: mean return {eps.mean_return:.1f}, {success}; "
-              f"ended by {ended}", highlight=False, soft_wrap=True, markup=False)
+              f"ended by {ended}", highlight=False, soft_wrap=True)
     for path in eps.videos:
-        out.print(f"video: {path}", highlight=False, soft_wrap=True, markup=False)
+        out.print(f"video: {path}", highlight=False, soft_wrap=True)
 
 
 @command("export")
@@ -271,7 +270,7 @@ def export_command(
                            framework=framework, logs_dir=logs_dir)
     out.print(f"wrote {result.path} and {result.metadata.name}; max abs difference from torch "
               f"{result.max_abs_diff:.2e} over {result.checked} observations", highlight=False,
-              soft_wrap=True, markup=False)
+              soft_wrap=True)
 
 
 @command("bench")
@@ -372,10 +371,9 @@ def plot_command(
                             framework=framework)
     result = plots.plot(selected, metric, output)
     for run in result.skipped:
-        err.print(f"note: {run.dir} has no '{metric}' yet; left out", highlight=False,
-                  markup=False)
+        err.print(f"note: {run.dir} has no '{metric}' yet; left out", highlight=False)
     out.print(f"wrote {result.path}: {metric} of {len(result.plotted)} run(s)", highlight=False,
-              soft_wrap=True, markup=False)
+              soft_wrap=True)
 
 
 @command("show", group=config_app)
@@ -394,8 +392,7 @@ def config_show(
     env_cfg, agent_cfg = training.resolve_configs(
         plugins.get_task(task), plugins.get_framework(framework), config_file=config_file,
         overrides=set_ or [])
-    out.print(config.dump(env_cfg, agent_cfg), end="", highlight=False, soft_wrap=True,
-              markup=False)
+    out.print(config.dump(env_cfg, agent_cfg), end="", highlight=False, soft_wrap=True)
 
 
 @command("info")
