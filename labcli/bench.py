@@ -112,7 +112,7 @@ def bench(task: str, num_envs: Sequence[int], *, backend: str | None = None,
                         device=device)
         try:
             row = BenchRow(task, env.backend, n, env_rate(env, seconds),
-                           threads=getattr(env.sim, "nthread", None))
+                           threads=env.sim.nthread)
         finally:
             env.close()
         if framework is not None:

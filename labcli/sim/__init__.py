@@ -23,6 +23,7 @@ class Sim:
     qpos: torch.Tensor
     qvel: torch.Tensor
     ctrl: torch.Tensor
+    nthread: int | None = None  # CPU threads that step the physics, where a backend has them
 
     def step(self, nstep: int) -> None:
         """Advance every env `nstep` physics steps holding `ctrl`."""
