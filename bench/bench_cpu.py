@@ -41,10 +41,10 @@ from mujoco import rollout
 from rich.console import Console
 from rich.table import Table
 
-from labcli import plugins
-from labcli.bench import env_rate, rate, time_to_success
-from labcli.env import LabVecEnv
-from labcli.framework import one_torch_thread
+from labcli.envs.env import LabVecEnv
+from labcli.plugins import registry
+from labcli.plugins.policy import one_torch_thread
+from labcli.runs.bench import env_rate, rate, time_to_success
 
 REPO = Path(__file__).resolve().parents[1]
 TASK = "cartpole"
@@ -63,8 +63,8 @@ console = Console(width=None if sys.stdout.isatty() else 150)
 
 # Timing ---------------------------------------------------------------------------------------
 def make_env(num_envs: int) -> LabVecEnv:
-    spec = plugins.get_task(TASK)
-    return LabVecEnv(spec, spec.config(num_envs=num_envs), backend="cpu", seed=0)
+    spec = registry.get_task(TASK)
+    return LabVecEnv(spec, spec.config_class(num_envs=num_envs), backend="cpu", seed=0)
 
 
 def lab_rate(num_envs: int, seconds: float) -> float:
@@ -79,8 +79,8 @@ def rollout_rate(num_envs: int, seconds: float) -> float:
     """bench_step.py's `raw_rollout` protocol on lab's cartpole model: one `mujoco.rollout` per
     env step over all envs (nthread = cores), decimation physics steps of random controls, the
     state copied out, envs whose cart left the rail put back at the initial state."""
-    spec = plugins.get_task(TASK)
-    cfg = spec.config(num_envs=num_envs)
+    spec = registry.get_task(TASK)
+    cfg = spec.config_class(num_envs=num_envs)
     model = mujoco.MjModel.from_xml_path(str(spec.model))
     nthread = os.cpu_count() or 1
     datas = [mujoco.MjData(model) for _ in range(nthread)]

@@ -34,9 +34,9 @@ import torch
 from rich.console import Console
 from rich.table import Table
 
-from labcli import training
-from labcli.env import LabVecEnv
-from labcli.training import TrainContext
+from labcli.envs.env import LabVecEnv
+from labcli.plugins.framework import TrainContext
+from labcli.runs import session, training
 
 PARTS = ("env step", "rollout rest", "update", "lab")
 console = Console(width=None if sys.stdout.isatty() else 150)
@@ -82,7 +82,7 @@ class Clock:
 
 def breakdown(task: str, framework: str, iterations: int, backend: str | None,
               num_envs: int | None) -> dict:
-    device = training.check_device(None, backend)
+    device = session.check_device(None, backend)
     sync = torch.cuda.synchronize if torch.device(device).type == "cuda" else (lambda: None)
     clock = Clock(sync)
     step, end_iteration = LabVecEnv.step, TrainContext.end_iteration

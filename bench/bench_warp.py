@@ -35,9 +35,10 @@ from pathlib import Path
 
 import torch
 
-from labcli import metrics, plugins
-from labcli.bench import time_to_success
-from labcli.env import LabVecEnv
+from labcli.envs import metrics
+from labcli.envs.env import LabVecEnv
+from labcli.plugins import registry
+from labcli.runs.bench import time_to_success
 
 SUCCESS = 0.95
 
@@ -69,9 +70,9 @@ def timed(body: Callable[[], None], steps: int, repeats: int = 3, warmup: int = 
 
 
 def make_env(task: str, num_envs: int, cuda_graph: bool = True) -> LabVecEnv:
-    spec = plugins.get_task(task)
-    return LabVecEnv(spec, spec.config(num_envs=num_envs, cuda_graph=cuda_graph), backend="warp",
-                     device="cuda")
+    spec = registry.get_task(task)
+    return LabVecEnv(spec, spec.config_class(num_envs=num_envs, cuda_graph=cuda_graph),
+                     backend="warp", device="cuda")
 
 
 def lab_loop(task: str, num_envs: int, steps: int, cuda_graph: bool = True) -> dict:
@@ -121,11 +122,10 @@ def raw_loop(task: str, num_envs: int, steps: int) -> dict:
     import mujoco
     import mujoco_warp as mjw
     import warp as wp
+    from labcli.envs.sim.warp import constraint_capacity, init_warp
 
-    from labcli.sim.warp import constraint_capacity, init_warp
-
-    spec = plugins.get_task(task)
-    cfg = spec.config(num_envs=num_envs)
+    spec = registry.get_task(task)
+    cfg = spec.config_class(num_envs=num_envs)
     init_warp()
     mjm = mujoco.MjModel.from_xml_path(str(spec.model))
     if cfg.sim_dt is not None:
@@ -176,7 +176,7 @@ def raw_loop(task: str, num_envs: int, steps: int) -> dict:
 def startup(task: str, num_envs: int) -> None:
     """Seconds to import MuJoCo Warp, build the env (kernels compiled or loaded) and step it."""
     start = time.perf_counter()
-    import labcli.sim.warp  # noqa: F401  (warp and mujoco_warp)
+    import labcli.envs.sim.warp  # noqa: F401  (warp and mujoco_warp)
 
     imported = time.perf_counter()
     env = make_env(task, num_envs)

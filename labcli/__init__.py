@@ -2,9 +2,9 @@
 
 from importlib.metadata import PackageNotFoundError, version
 
-from labcli import gl
+from labcli.envs.render import gl
 
-gl.set_default()  # before any module imports mujoco, which reads MUJOCO_GL on import
+gl.settle()  # before any module imports mujoco, which reads MUJOCO_GL on import
 
 try:
     __version__ = version("lab")

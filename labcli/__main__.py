@@ -1,3 +1,3 @@
-from labcli.launch import main
+from labcli.commands.launch import main
 
 main()

@@ -35,6 +35,13 @@ class Interrupted(LabError):
         self.exit_code = exit_code
 
 
+def first_line(exc: BaseException) -> str:
+    """The first line of an exception's message (its type's name where it has none): what one
+    line of error output can quote."""
+    lines = str(exc).strip().splitlines()
+    return lines[0] if lines else type(exc).__name__
+
+
 def unknown_name(kind: str, name: str, known: Iterable[str]) -> LabError:
     """An error for a name that is not among `known`, suggesting the closest one."""
     known = sorted(known)

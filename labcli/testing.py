@@ -21,11 +21,15 @@ import numpy as np
 import torch
 from rich.console import Console
 
-from labcli import metrics, plugins, runs, training, wrappers
-from labcli.env import LabVecEnv
-from labcli.framework import Framework, Policy
-from labcli.plot import read_scalars
-from labcli.wrappers import Stage
+from labcli.envs import metrics, wrappers
+from labcli.envs.env import LabVecEnv
+from labcli.envs.wrappers import Stage
+from labcli.plugins import registry
+from labcli.plugins.framework import FrameworkSpec
+from labcli.plugins.policy import Policy
+from labcli.runs import checkpoints, rundir, training
+from labcli.runs.plot import read_scalars
+from labcli.runs.session import TrainOutcome
 
 TASK = "cartpole"
 NUM_ENVS = 4
@@ -71,7 +75,7 @@ def _array(x: Any) -> np.ndarray:
 
 
 def train_small(name: str, logs_dir: Path, iterations: int, overrides: Sequence[str],
-                num_envs: int = NUM_ENVS, **kwargs: Any) -> training.TrainOutcome:
+                num_envs: int = NUM_ENVS, **kwargs: Any) -> TrainOutcome:
     """A quiet training run of cartpole with framework `name`, for tests."""
     return training.train(TASK, name, num_envs=num_envs, max_iterations=iterations,
                           overrides=list(overrides), logs_dir=logs_dir, seed=kwargs.pop("seed", 0),
@@ -80,21 +84,23 @@ def train_small(name: str, logs_dir: Path, iterations: int, overrides: Sequence[
 
 def make_env(num_envs: int = NUM_ENVS, **cfg: Any) -> LabVecEnv:
     """A cartpole env on the cpu backend with `cfg` over the task's defaults, for tests."""
-    spec = plugins.get_task(TASK)
-    return LabVecEnv(spec, spec.config(num_envs=num_envs, **cfg))
+    spec = registry.get_task(TASK)
+    return LabVecEnv(spec, spec.config_class(num_envs=num_envs, **cfg))
 
 
 def check_adapter(name: str, probe: Probe | None = None) -> None:
     """The framework registers its adapter, its default pipeline validates and wraps a LabVecEnv;
     with a `probe`, zero actions through the adapter give `[num_envs]` batches, and time-outs
     reach the library flagged apart from terminations."""
-    fw = plugins.get_framework(name)
-    assert isinstance(fw, Framework), f"{name}: registered object is not a labcli Framework"
-    owned = list(fw.wrappers())
+    spec = registry.get_framework(name)
+    assert isinstance(spec, FrameworkSpec), f"{name}: registered object is not a FrameworkSpec"
+    owned = list(spec.wrappers)
     adapters = [s for s in owned if s.stage is Stage.ADAPTER]
-    assert adapters and owned[0] is adapters[0], f"{name}: wrappers() must list its adapter first"
-    for spec in owned:
-        assert plugins.get_wrapper(spec.name) is spec, f"{name}: wrapper {spec.name} not registered"
+    assert adapters and owned[0] is adapters[0], f"{name}: wrappers must list its adapter first"
+    for wrapper in owned:
+        assert registry.get_wrapper(wrapper.name) is wrapper, (
+            f"{name}: wrapper {wrapper.name} is not the one registered under its name")
+    fw = spec.load()
     cfg = fw.agent_config()
     pipeline = fw.pipeline(cfg)
     wrappers.validate(pipeline, name)  # a LabError names the wrapper out of place
@@ -138,10 +144,10 @@ def check_adapter(name: str, probe: Probe | None = None) -> None:
 
 
 def check_training_outputs(name: str, tmp_path: Path, overrides: Sequence[str] = (),
-                           iterations: int = 3) -> training.TrainOutcome:
+                           iterations: int = 3) -> TrainOutcome:
     """A few iterations write checkpoints named by `checkpoint_path` at the save interval and at
     the end, a consistent summary.json and manifest, and the common TensorBoard tags."""
-    fw = plugins.get_framework(name)
+    fw = registry.get_framework(name)
     outcome = train_small(name, tmp_path, iterations,
                      [*overrides, SHORT_EPISODE, "agent.save_interval=2"])
     run_dir = outcome.run.dir
@@ -151,9 +157,10 @@ def check_training_outputs(name: str, tmp_path: Path, overrides: Sequence[str] =
     found = [c.iteration for c in fw.checkpoints(run_dir)]
     assert found == [2, iterations], f"{name}: checkpoints at iterations {found}, not [2, 3]"
     assert not list(run_dir.glob(".tmp_*")), f"{name}: temporary files left in {run_dir}"
-    for file in (runs.ENV_PARAMS, runs.AGENT_PARAMS, runs.COMMAND, runs.MANIFEST, runs.SUMMARY):
+    for file in (rundir.ENV_PARAMS, rundir.AGENT_PARAMS, rundir.COMMAND, rundir.MANIFEST,
+                 rundir.SUMMARY):
         assert (run_dir / file).is_file(), f"{name}: run dir lacks {file}"
-    summary = json.loads((run_dir / runs.SUMMARY).read_text())
+    summary = json.loads((run_dir / rundir.SUMMARY).read_text())
     assert summary["state"] == "finished", f"{name}: summary state {summary['state']}"
     assert summary["iterations"] == iterations, f"{name}: summary iterations {summary}"
     steps = summary["steps"]
@@ -161,7 +168,7 @@ def check_training_outputs(name: str, tmp_path: Path, overrides: Sequence[str] =
         f"{name}: summary steps {steps} is not a whole number of {NUM_ENVS}-env iterations")
     assert summary["checkpoint"] == expected[-1].name, f"{name}: summary {summary['checkpoint']}"
     assert summary["mean_return"] is not None, f"{name}: no episode stats reached the summary"
-    assert json.loads((run_dir / runs.MANIFEST).read_text())["state"] == "finished"
+    assert json.loads((run_dir / rundir.MANIFEST).read_text())["state"] == "finished"
     scalars = read_scalars(run_dir)
     env = make_env(1)
     try:
@@ -201,7 +208,7 @@ def check_policy_roundtrip(name: str, tmp_path: Path, overrides: Sequence[str] =
                            normalized: bool = True) -> Policy:
     """The last checkpoint loads as a Policy that gives the same deterministic actions every
     time it is loaded and called, in [-1, 1]; with `normalized`, the normalizer is inside."""
-    fw = plugins.get_framework(name)
+    fw = registry.get_framework(name)
     outcome = train_small(name, tmp_path, 2, [*overrides, SHORT_EPISODE])
     checkpoint = fw.checkpoints(outcome.run.dir)[-1].path
     obs = _observations()
@@ -209,7 +216,7 @@ def check_policy_roundtrip(name: str, tmp_path: Path, overrides: Sequence[str] =
     for num_envs in (NUM_ENVS, 16):  # the policy must not depend on the env's batch size
         env = make_env(num_envs)
         try:
-            policy = fw.load_policy(checkpoint, env)
+            policy = fw.load().load_policy(checkpoint, env)
         finally:
             env.close()
         assert isinstance(policy, Policy), f"{name}: load_policy returned {type(policy).__name__}"
@@ -237,7 +244,7 @@ def check_policy_roundtrip(name: str, tmp_path: Path, overrides: Sequence[str] =
 def _actions(name: str, checkpoint: Path, obs: torch.Tensor) -> torch.Tensor:
     env = make_env()
     try:
-        policy = plugins.get_framework(name).load_policy(checkpoint, env)
+        policy = registry.get_framework(name).load().load_policy(checkpoint, env)
     finally:
         env.close()
     with torch.no_grad():
@@ -249,11 +256,11 @@ def check_resume(name: str, tmp_path: Path, overrides: Sequence[str] = ()) -> fl
     checkpoint, the new checkpoints land in the same run dir, and 2 + 2 iterations end with the
     policy of 4 in one go (same seed, CPU): optimizer, normalizer, learning rate, episodes in
     flight and random generators all carried over. Returns the largest action difference."""
-    fw = plugins.get_framework(name)
+    fw = registry.get_framework(name)
     sets = [*overrides, SHORT_EPISODE, "agent.save_interval=2"]
     first = train_small(name, tmp_path / "resumed", 2, sets)
     per_iteration = first.summary["steps"] // 2
-    second = train_small(name, tmp_path / "resumed", 4, sets, checkpoint=training.LATEST)
+    second = train_small(name, tmp_path / "resumed", 4, sets, checkpoint=checkpoints.LATEST)
     assert second.run.dir == first.run.dir, f"{name}: resume made a new run dir"
     assert second.summary["iterations"] == 4, (
         f"{name}: resumed run ended at iteration {second.summary['iterations']}, not 4")
@@ -262,7 +269,7 @@ def check_resume(name: str, tmp_path: Path, overrides: Sequence[str] = ()) -> fl
         f"{4 * per_iteration} (the step count must continue from the checkpoint)")
     found = [c.iteration for c in fw.checkpoints(first.run.dir)]
     assert found[-1] == 4 and 2 in found, f"{name}: checkpoints at iterations {found}"
-    manifest = json.loads((first.run.dir / runs.MANIFEST).read_text())
+    manifest = json.loads((first.run.dir / rundir.MANIFEST).read_text())
     assert manifest.get("resumed_from") == fw.checkpoint_path(first.run.dir, 2).name
     once = train_small(name, tmp_path / "once", 4, sets)
     # Stopped by SIGINT half-way through the fourth rollout (iteration 3, not due for a
@@ -271,9 +278,9 @@ def check_resume(name: str, tmp_path: Path, overrides: Sequence[str] = ()) -> fl
     steps_per_env = per_iteration // NUM_ENVS
     with _sigint_at_env_step(3 * steps_per_env + steps_per_env // 2):
         stopped = train_small(name, tmp_path / "interrupted", 4, sets)
-    assert stopped.summary["state"] == runs.INTERRUPTED and stopped.summary["iterations"] == 3, (
+    assert stopped.summary["state"] == rundir.INTERRUPTED and stopped.summary["iterations"] == 3, (
         f"{name}: a stop in the fourth rollout gave {stopped.summary}")
-    after_stop = train_small(name, tmp_path / "interrupted", 4, sets, checkpoint=training.LATEST)
+    after_stop = train_small(name, tmp_path / "interrupted", 4, sets, checkpoint=checkpoints.LATEST)
     obs = _observations()
     unbroken = _actions(name, fw.checkpoint_path(once.run.dir, 4), obs)
     diff = 0.0
@@ -310,7 +317,7 @@ def check_determinism(name: str, tmp_path: Path, overrides: Sequence[str] = (),
                       iterations: int = 2) -> list[float]:
     """The same seed on the CPU gives the same mean returns and policy; another seed other
     ones. Returns the mean returns of seed 0."""
-    fw = plugins.get_framework(name)
+    fw = registry.get_framework(name)
     sets = [*overrides, SHORT_EPISODE]
     outcomes = [train_small(name, tmp_path / label, iterations, sets, seed=seed)
                 for label, seed in (("a", 0), ("b", 0), ("c", 1))]
@@ -327,9 +334,9 @@ def check_determinism(name: str, tmp_path: Path, overrides: Sequence[str] = (),
 
 def check_export(name: str, tmp_path: Path, overrides: Sequence[str] = ()) -> float:
     """The Policy exports to ONNX and matches torch within 1e-5; returns the max difference."""
-    from labcli.export import Format, export
+    from labcli.runs.export import Format, export
 
-    fw = plugins.get_framework(name)
+    fw = registry.get_framework(name)
     outcome = train_small(name, tmp_path, 1, [*overrides, SHORT_EPISODE])
     result = export(Format.onnx, run_dir=outcome.run.dir)
     assert result.path.is_file(), f"{name}: no {result.path}"
@@ -337,7 +344,7 @@ def check_export(name: str, tmp_path: Path, overrides: Sequence[str] = ()) -> fl
 
     env = make_env()
     try:
-        policy = fw.load_policy(fw.checkpoints(outcome.run.dir)[-1].path, env)
+        policy = fw.load().load_policy(fw.checkpoints(outcome.run.dir)[-1].path, env)
     finally:
         env.close()
     obs = _observations()

@@ -8,7 +8,7 @@ import pytest
 
 # labcli settles MUJOCO_GL on import (egl without a display), and MuJoCo reads it once, on its own
 # first import: import labcli before any test module imports mujoco, so rendering tests see it.
-from labcli import plugins
+from labcli.plugins import registry
 
 
 @pytest.fixture
@@ -17,12 +17,12 @@ def register_plugin() -> Iterator[Callable[[object, str], None]]:
     names: list[str] = []
 
     def register(plugin: object, name: str) -> None:
-        plugins.pm.register(plugin, name=name)
+        registry.pm.register(plugin, name=name)
         names.append(name)
-        plugins.reload()
+        registry.reload()
 
     yield register
     for name in names:
-        if plugins.pm.has_plugin(name):
-            plugins.pm.unregister(name=name)
-    plugins.reload()
+        if registry.pm.has_plugin(name):
+            registry.pm.unregister(name=name)
+    registry.reload()

@@ -15,15 +15,18 @@ import torch
 import yaml
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
-from lab_cartpole.cartpole import Cartpole, CartpoleConfig
-from lab_sb3.framework import Sb3PPOConfig
+from lab_cartpole.cartpole import Cartpole
+from lab_cartpole.config import CartpoleConfig
+from lab_sb3.config import Sb3PPOConfig
+from oneline import assert_one_line_error
 from typer.testing import CliRunner
 
-from labcli import plugins, runs, training
-from labcli.cli import app
-from labcli.env import LabVecEnv
+from labcli.commands.app import app
+from labcli.envs.env import LabVecEnv
 from labcli.errors import LabError
-from labcli.hookspecs import hookimpl
+from labcli.plugins import registry
+from labcli.plugins.hookspecs import hookimpl
+from labcli.runs import config, rundir
 
 SMALL = ["--num-envs", "4", "--max-iterations", "1", "--set", "agent.n_steps=8",
          "--set", "agent.batch_size=16", "--set", "agent.n_epochs=1",
@@ -34,12 +37,6 @@ def lab(*args: str, logs: Path):
     return CliRunner().invoke(app, list(args), env={"LAB_LOGS_DIR": str(logs), "COLUMNS": "300"})
 
 
-def assert_one_line_error(result, *phrases: str) -> None:
-    assert result.exit_code == 2, result.output
-    assert result.stderr.startswith("error: ") and result.stderr.count("\n") == 1, result.stderr
-    assert "Traceback" not in result.output
-    for phrase in phrases:
-        assert phrase in result.stderr
 
 
 def snapshot_of(root: Path) -> dict[Path, int]:
@@ -80,7 +77,7 @@ DAMAGE = {
 @pytest.mark.parametrize("damage", DAMAGE)
 def test_a_damaged_env_yaml_is_named_and_nothing_is_written(run_copy, use, damage):
     text, complaint = DAMAGE[damage]
-    (run_copy / runs.ENV_PARAMS).write_text(text)
+    (run_copy / rundir.ENV_PARAMS).write_text(text)
     before = snapshot_of(run_copy)
     result = lab(*USES[use](run_copy), logs=run_copy.parents[2])
     assert_one_line_error(result, "params/env.yaml", complaint)
@@ -98,7 +95,7 @@ class PositionsOnly(Cartpole):
 class ShortTask:
     @hookimpl
     def register_tasks(self, register):
-        register(dataclasses.replace(plugins.get_task("cartpole"), name="cartpole_short",
+        register(dataclasses.replace(registry.get_task("cartpole"), name="cartpole_short",
                                      task=PositionsOnly, config=CartpoleConfig))
 
 
@@ -208,9 +205,9 @@ set_items = st.one_of(
 @example(items=["env.sim_dt=.nan"], num_envs=None)
 @example(items=[], num_envs=10**12)
 def test_any_set_and_num_envs_work_or_are_one_lab_error(items, num_envs, mujoco_log_dir):
-    spec, fw = plugins.get_task("cartpole"), plugins.get_framework("sb3")
+    spec, fw = registry.get_task("cartpole"), registry.get_framework("sb3")
     try:
-        env_cfg, _ = training.resolve_configs(spec, fw, overrides=items, num_envs=num_envs)
+        env_cfg, _ = config.resolve(spec, fw, overrides=items, num_envs=num_envs)
         # Within the bounds any count works; stepping a few of them tells as much as many.
         env = LabVecEnv(spec, env_cfg.model_copy(update={"num_envs": min(env_cfg.num_envs, 4)}))
     except LabError as err:

@@ -14,9 +14,10 @@ from pathlib import Path
 import pytest
 import typer
 import yaml
+from oneline import assert_one_line_error
 from typer.testing import CliRunner
 
-from labcli.cli import app
+from labcli.commands.app import app
 
 SMALL = ["--num-envs", "4", "--max-iterations", "2", "--set", "agent.n_steps=8",
          "--set", "agent.batch_size=16", "--set", "agent.n_epochs=1",
@@ -29,11 +30,6 @@ def lab(*args: str, logs: Path, **env: str | None) -> object:
                                                   **env})
 
 
-def assert_one_line_error(result, *phrases: str) -> None:
-    assert result.exit_code == 2, result.output
-    assert result.stderr.startswith("error: ") and result.stderr.count("\n") == 1
-    for phrase in phrases:
-        assert phrase in result.stderr
 
 
 def all_commands(group, prefix: tuple[str, ...] = ()) -> list[tuple[str, ...]]:

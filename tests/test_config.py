@@ -14,12 +14,13 @@ import pytest
 import yaml
 from hypothesis import example, given
 from hypothesis import strategies as st
-from lab_cartpole.cartpole import CartpoleConfig
-from lab_sb3.framework import Sb3PPOConfig
+from lab_cartpole.config import CartpoleConfig
+from lab_sb3.config import Sb3PPOConfig
 
-from labcli import config, plugins
 from labcli.errors import LabError
-from labcli.training import resolve_configs
+from labcli.plugins import registry
+from labcli.runs import config
+from labcli.runs.config import resolve as resolve_configs
 
 DEFAULT_WEIGHTS = CartpoleConfig().reward_weights
 ENV_KEYS = sorted(CartpoleConfig.model_fields)
@@ -54,8 +55,8 @@ def nested(path: str, value: object) -> dict:
 
 
 def resolve(spec=None, framework: str = "sb3", **kwargs):
-    spec = spec or plugins.get_task("cartpole")
-    return resolve_configs(spec, plugins.get_framework(framework), **kwargs)
+    spec = spec or registry.get_task("cartpole")
+    return resolve_configs(spec, registry.get_framework(framework), **kwargs)
 
 
 # --set parsing ---------------------------------------------------------------------------------
@@ -195,7 +196,7 @@ def write_yaml(path: Path, data: dict) -> Path:
 
 
 def test_layers_apply_in_order(tmp_path):
-    spec = dataclasses.replace(plugins.get_task("cartpole"), framework_defaults={
+    spec = dataclasses.replace(registry.get_task("cartpole"), framework_defaults={
         "sb3": {"env": {"num_envs": 128, "decimation": 3, "episode_length_s": 4.0},
                 "agent": {"n_steps": 16, "batch_size": 64, "max_iterations": 7}},
         "skrl": {"env": {"cart_bound": 9.0}, "agent": {}},  # another framework's: never used
@@ -220,14 +221,14 @@ def test_layers_apply_in_order(tmp_path):
 def test_built_in_framework_defaults_apply_to_their_framework_only():
     rsl_env, rsl_agent = resolve(framework="rsl_rl")
     sb3_env, _ = resolve(framework="sb3")
-    defaults = plugins.get_task("cartpole").framework_defaults
+    defaults = registry.get_task("cartpole").framework_defaults
     assert rsl_env.num_envs == defaults["rsl_rl"]["env"]["num_envs"]
     assert rsl_agent.max_iterations == defaults["rsl_rl"]["agent"]["max_iterations"]
     assert sb3_env.num_envs == defaults["sb3"]["env"]["num_envs"]
 
 
 def test_reward_weights_merge_key_by_key_across_layers(tmp_path):
-    spec = dataclasses.replace(plugins.get_task("cartpole"), framework_defaults={
+    spec = dataclasses.replace(registry.get_task("cartpole"), framework_defaults={
         "sb3": {"env": {"reward_weights": {"cart_vel": -0.5}}, "agent": {}}})
     file = write_yaml(tmp_path / "cfg.yaml", {"env": {"reward_weights": {"upright": 3.0}}})
     env, _ = resolve(spec, config_file=file, overrides=["env.reward_weights.alive=2"])

@@ -5,16 +5,16 @@ from __future__ import annotations
 
 import pytest
 import torch
-from lab_cartpole.cartpole import CartpoleConfig
+from lab_cartpole.config import CartpoleConfig
 
-from labcli import plugins
-from labcli.cuda_graph import _fresh
-from labcli.env import LabVecEnv
+from labcli.envs.cuda_graph import _fresh
+from labcli.envs.env import LabVecEnv
 from labcli.errors import LabError
+from labcli.plugins import registry
 
 
 def cpu_env(**cfg) -> LabVecEnv:
-    spec = plugins.get_task("cartpole")
+    spec = registry.get_task("cartpole")
     return LabVecEnv(spec, CartpoleConfig(num_envs=4, **cfg), backend="cpu")
 
 

@@ -15,12 +15,13 @@ import numpy as np
 import pytest
 import torch
 from gymnasium.vector import AutoresetMode
-from lab_cartpole.cartpole import CartpoleConfig
+from lab_cartpole.config import CartpoleConfig
 from mujoco import rollout
 
-from labcli import metrics, plugins
-from labcli.env import UNSTABLE, LabVecEnv
+from labcli.envs import metrics
+from labcli.envs.env import UNSTABLE, LabVecEnv
 from labcli.errors import LabError
+from labcli.plugins import registry
 
 NUM_ENVS = 8
 OBS, ACT = 4, 1
@@ -44,8 +45,8 @@ def make_env(tmp_path, monkeypatch) -> Iterator[Callable[..., LabVecEnv]]:
     made: list[LabVecEnv] = []
 
     def make(num_envs: int = NUM_ENVS, seed: int = 0, **overrides) -> LabVecEnv:
-        spec = plugins.get_task("cartpole")
-        env = LabVecEnv(spec, spec.config(num_envs=num_envs, **overrides), backend="cpu",
+        spec = registry.get_task("cartpole")
+        env = LabVecEnv(spec, spec.config_class(num_envs=num_envs, **overrides), backend="cpu",
                         seed=seed)
         made.append(env)
         return env
@@ -356,8 +357,8 @@ def test_the_physics_thread_ends_with_its_env(make_env):
     with pytest.raises(RuntimeError):  # not a hang
         env.step(zeros())
     # An env never closed lets its thread go when it is collected.
-    spec = plugins.get_task("cartpole")
-    unclosed = LabVecEnv(spec, spec.config(num_envs=4, threads=2), backend="cpu")
+    spec = registry.get_task("cartpole")
+    unclosed = LabVecEnv(spec, spec.config_class(num_envs=4, threads=2), backend="cpu")
     unclosed.step(torch.zeros(4, ACT))
     assert physics_threads() == before + 1
     del unclosed
@@ -503,9 +504,9 @@ def test_a_state_mujoco_rejects_counts_as_unstable(make_env, pole_vel):
     {**{t: 1.0 for t in TERMS}, "energy": 1.0},  # a weight for a term the task never computes
 ])
 def test_reward_weights_must_match_the_reward_terms(weights):
-    spec = plugins.get_task("cartpole")
+    spec = registry.get_task("cartpole")
     with pytest.raises(LabError) as err:
-        LabVecEnv(spec, spec.config(num_envs=2, reward_weights=weights), backend="cpu")
+        LabVecEnv(spec, spec.config_class(num_envs=2, reward_weights=weights), backend="cpu")
     message = str(err.value)
     assert "cartpole" in message and "pole_vel" in message
     assert ("energy" in message) == ("energy" in weights)

@@ -13,11 +13,14 @@ import pytest
 import torch
 from rich.console import Console
 
-from labcli import metrics, plugins, training
+from labcli.envs import metrics
+from labcli.envs.gym_bridge import GymVecEnv
+from labcli.envs.make import make_env
 from labcli.errors import LabError
-from labcli.export import Format, export
-from labcli.gym_bridge import GymVecEnv
-from labcli.play import play
+from labcli.plugins import registry
+from labcli.runs import training
+from labcli.runs.export import Format, export
+from labcli.runs.play import play
 
 TASK = "gym:InvertedPendulum-v5"
 # Tiny agents: the API is under test here, learning in test_sb3_solves_inverted_pendulum.
@@ -30,8 +33,8 @@ SMALL = {
 
 
 def make(num_envs: int = 4, **cfg) -> GymVecEnv:
-    spec = plugins.get_task(TASK)
-    return spec.make_env(spec.config(num_envs=num_envs, **cfg))
+    spec = registry.get_task(TASK)
+    return make_env(spec, spec.config_class(num_envs=num_envs, **cfg))
 
 
 def test_steps_like_a_lab_env():
@@ -100,16 +103,16 @@ def test_trains_plays_and_exports_with_every_framework(tmp_path, framework):
 ])
 def test_unknown_ids_and_unsupported_spaces_are_lab_errors(name, phrases):
     with pytest.raises(LabError) as info:
-        spec = plugins.get_task(name)
-        spec.make_env(spec.config(num_envs=2))
+        spec = registry.get_task(name)
+        make_env(spec, spec.config_class(num_envs=2))
     for phrase in phrases:
         assert phrase in str(info.value)
 
 
 def test_gym_tasks_refuse_the_warp_backend():
-    spec = plugins.get_task(TASK)
+    spec = registry.get_task(TASK)
     with pytest.raises(LabError, match="not on the 'warp' backend"):
-        spec.make_env(spec.config(num_envs=2), backend="warp")
+        make_env(spec, spec.config_class(num_envs=2), backend="warp")
 
 
 @pytest.mark.slow

@@ -16,8 +16,10 @@ from pathlib import Path
 import pytest
 import torch
 
-from labcli import plugins, runs, testing, training
+from labcli import testing
 from labcli.errors import LabError
+from labcli.plugins import registry
+from labcli.runs import checkpoints, rundir
 
 SB3_SMALL = ["--set", "agent.n_steps=8", "--set", "agent.batch_size=16", "--set",
              "agent.n_epochs=1", "--set", "agent.net_arch=[16]"]
@@ -42,11 +44,11 @@ def wait_for(condition, timeout: float = 60.0, interval: float = 0.05) -> None:
 
 
 def run_dirs(logs: Path) -> list[Path]:
-    return sorted(p.parent for p in logs.glob(f"sb3/cartpole/*/{runs.MANIFEST}"))
+    return sorted(p.parent for p in logs.glob(f"sb3/cartpole/*/{rundir.MANIFEST}"))
 
 
 def newest_iteration(run_dir: Path) -> int:
-    found = plugins.get_framework("sb3").checkpoints(run_dir)
+    found = registry.get_framework("sb3").checkpoints(run_dir)
     return found[-1].iteration if found else 0
 
 
@@ -58,18 +60,18 @@ def stop(proc: subprocess.Popen, signum: int) -> tuple[int, str, float]:
 
 
 def assert_interrupted_with_a_loadable_checkpoint(run_dir: Path) -> dict:
-    summary = json.loads((run_dir / runs.SUMMARY).read_text())
-    assert summary["state"] == runs.INTERRUPTED
-    assert json.loads((run_dir / runs.MANIFEST).read_text())["state"] == runs.INTERRUPTED
-    assert runs.run_state(runs.Run(run_dir)) == runs.INTERRUPTED
-    fw = plugins.get_framework("sb3")
+    summary = json.loads((run_dir / rundir.SUMMARY).read_text())
+    assert summary["state"] == rundir.INTERRUPTED
+    assert json.loads((run_dir / rundir.MANIFEST).read_text())["state"] == rundir.INTERRUPTED
+    assert rundir.run_state(rundir.Run(run_dir)) == rundir.INTERRUPTED
+    fw = registry.get_framework("sb3")
     checkpoint = fw.checkpoint_path(run_dir, summary["iterations"])
     assert summary["checkpoint"] == checkpoint.name and checkpoint.is_file()
-    assert fw.latest_checkpoint(run_dir).path == checkpoint
+    assert checkpoints.latest_complete(fw, run_dir).path == checkpoint
     assert summary["steps"] == summary["iterations"] * 4 * 8  # 4 envs x 8 steps
     env = testing.make_env()
     try:
-        fw.load_policy(checkpoint, env)
+        fw.load().load_policy(checkpoint, env)
     finally:
         env.close()
     assert not list(run_dir.glob(".tmp_*"))
@@ -84,10 +86,10 @@ def test_sigint_and_sigterm_mid_training_of_two_concurrent_runs(tmp_path):
     try:
         wait_for(lambda: len(run_dirs(logs)) == 2
                  and all(newest_iteration(d) >= 2 for d in run_dirs(logs)))
-        by_pid = {json.loads((d / runs.MANIFEST).read_text())["pid"]: d for d in run_dirs(logs)}
+        by_pid = {json.loads((d / rundir.MANIFEST).read_text())["pid"]: d for d in run_dirs(logs)}
         assert set(by_pid) == {p.pid for p in procs}  # distinct dirs, one per process
         for d in by_pid.values():
-            assert runs.run_state(runs.Run(d)) == runs.RUNNING
+            assert rundir.run_state(rundir.Run(d)) == rundir.RUNNING
         results = [stop(proc, signum) for proc, signum in zip(
             procs, (signal.SIGINT, signal.SIGTERM), strict=True)]
     finally:
@@ -128,7 +130,10 @@ def test_a_signal_while_lab_imports_is_one_line_and_writes_nothing(tmp_path):
     finally:
         proc.kill()
     assert code == 143, err
-    assert err.count("\n") == 1 and "SIGTERM" in err and "nothing was written" in err
+    # What lab train announced before importing them, if it got that far, then one line.
+    *announced, last = err.splitlines()
+    assert all(line.startswith("train ") for line in announced) and len(announced) <= 1, err
+    assert "SIGTERM" in last and "nothing was written" in last
     assert not logs.exists()
 
 
@@ -159,12 +164,12 @@ def test_sigint_during_the_update_checkpoints_that_iteration(name, tmp_path, mon
     monkeypatch.setattr(owner, method, update)
     outcome = testing.train_small(name, tmp_path, 50, SMALL[name])
     assert updates == 2
-    assert outcome.summary["state"] == runs.INTERRUPTED and outcome.summary["iterations"] == 2
+    assert outcome.summary["state"] == rundir.INTERRUPTED and outcome.summary["iterations"] == 2
     assert outcome.summary["signal"] == signal.SIGINT
-    fw = plugins.get_framework(name)
+    fw = registry.get_framework(name)
     assert [c.iteration for c in fw.checkpoints(outcome.run.dir)] == [2]
-    resumed = testing.train_small(name, tmp_path, 3, SMALL[name], checkpoint=training.LATEST)
-    assert resumed.run.dir == outcome.run.dir and resumed.summary["state"] == runs.FINISHED
+    resumed = testing.train_small(name, tmp_path, 3, SMALL[name], checkpoint=checkpoints.LATEST)
+    assert resumed.run.dir == outcome.run.dir and resumed.summary["state"] == rundir.FINISHED
 
 
 # SIGKILL mid-write: the child writes its next checkpoint slowly, and is killed half-way.
@@ -173,7 +178,7 @@ KILLED_MID_SAVE = textwrap.dedent("""
     from pathlib import Path
     from rich.console import Console
     from lab_sb3.framework import PPO
-    from labcli import training
+    from labcli.runs import training
 
     original = PPO.save
     def slow_save(self, path, *args, **kwargs):
@@ -200,20 +205,20 @@ def test_sigkill_while_a_checkpoint_is_written_leaves_the_previous_one(tmp_path)
     finally:
         proc.kill()
     (run_dir,) = run_dirs(logs)
-    fw = plugins.get_framework("sb3")
+    fw = registry.get_framework("sb3")
     assert not fw.checkpoint_path(run_dir, 2).exists()  # only its temporary file was written
     assert list(run_dir.glob(".tmp_model_2.zip"))
-    run, found = training.find_checkpoint(training.LATEST, logs, "cartpole", fw)
+    run, found = checkpoints.find(checkpoints.LATEST, logs, "cartpole", fw)
     assert run.dir == run_dir and found.iteration == 1
-    assert runs.run_state(run) == runs.FAILED  # recorded as running, its process is gone
+    assert rundir.run_state(run) == rundir.FAILED  # recorded as running, its process is gone
     resumed = testing.train_small("sb3", logs, 2, ["agent.n_steps=8", "agent.batch_size=16",
                                                    "agent.n_epochs=1"],
-                                  checkpoint=training.LATEST)
-    assert resumed.summary["state"] == runs.FINISHED and resumed.summary["iterations"] == 2
+                                  checkpoint=checkpoints.LATEST)
+    assert resumed.summary["state"] == rundir.FINISHED and resumed.summary["iterations"] == 2
 
 
 def test_latest_passes_over_stray_and_truncated_checkpoints(tmp_path):
-    fw = plugins.get_framework("rsl_rl")
+    fw = registry.get_framework("rsl_rl")
     outcome = testing.train_small("rsl_rl", tmp_path, 2, [*SMALL["rsl_rl"],
                                                          "agent.save_interval=1"])
     run_dir = outcome.run.dir
@@ -221,13 +226,13 @@ def test_latest_passes_over_stray_and_truncated_checkpoints(tmp_path):
     data = complete.read_bytes()
     fw.checkpoint_path(run_dir, 3).write_bytes(data[: len(data) // 2])  # truncated
     (run_dir / ".tmp_model_4.pt").write_bytes(data)  # a write that never got renamed
-    for value in (training.LATEST, str(run_dir)):
-        _, found = training.find_checkpoint(value, tmp_path, "cartpole", fw)
+    for value in (checkpoints.LATEST, str(run_dir)):
+        _, found = checkpoints.find(value, tmp_path, "cartpole", fw)
         assert found.path == complete
     with pytest.raises(LabError) as err:
-        training.find_checkpoint(str(fw.checkpoint_path(run_dir, 3)), tmp_path, "cartpole", fw)
+        checkpoints.find(str(fw.checkpoint_path(run_dir, 3)), tmp_path, "cartpole", fw)
     assert "model_3.pt" in str(err.value) and "incomplete" in str(err.value)
     resumed = testing.train_small("rsl_rl", tmp_path, 3, SMALL["rsl_rl"],
-                                  checkpoint=training.LATEST)
-    assert resumed.summary["state"] == runs.FINISHED
+                                  checkpoint=checkpoints.LATEST)
+    assert resumed.summary["state"] == rundir.FINISHED
     assert torch.load(fw.checkpoint_path(run_dir, 3), weights_only=True)["iter"] == 3

@@ -20,12 +20,15 @@ import yaml
 from rich.console import Console
 from typer.testing import CliRunner
 
-from labcli import cli, metrics, plugins, runs, training
-from labcli.env import LabVecEnv
+from labcli.commands import app as cli
+from labcli.envs import metrics
+from labcli.envs.env import LabVecEnv
+from labcli.envs.wrappers import Stage, WrapperSpec
 from labcli.errors import LabError
-from labcli.hookspecs import hookimpl
-from labcli.plugins import PluginFailure, Provider
-from labcli.wrappers import Stage, WrapperSpec
+from labcli.plugins import registry
+from labcli.plugins.hookspecs import hookimpl
+from labcli.plugins.registry import PluginFailure, Provider
+from labcli.runs import rundir, training
 
 EXAMPLE = Path(__file__).with_name("example_plugin")
 EXAMPLE_DIST, EXAMPLE_VERSION = "lab-example-reach", "0.1.0"
@@ -37,7 +40,7 @@ NOT_INSTALLED = "(not installed)"  # the version shown for a plugin registered b
 def on_sys_path(site: Path) -> Iterator[None]:
     """Makes the distributions in `site` installed for the duration, then forgets every plugin,
     module and registry entry they brought, so that later tests see the stock set."""
-    plugins_before = {name for name, _ in plugins.pm.list_name_plugin()}
+    plugins_before = {name for name, _ in registry.pm.list_name_plugin()}
     modules_before = set(sys.modules)
     sys.path.insert(0, str(site))
     importlib.invalidate_caches()
@@ -45,14 +48,14 @@ def on_sys_path(site: Path) -> Iterator[None]:
         yield
     finally:
         sys.path.remove(str(site))
-        for name, _ in plugins.pm.list_name_plugin():
+        for name, _ in registry.pm.list_name_plugin():
             if name not in plugins_before:
-                plugins.pm.unregister(name=name)
+                registry.pm.unregister(name=name)
         for name in set(sys.modules) - modules_before:
             if str(site) in (getattr(sys.modules[name], "__file__", None) or ""):
                 del sys.modules[name]
         importlib.invalidate_caches()
-        plugins.reload()
+        registry.reload()
 
 
 def write_dist(site: Path, dist: str, version: str, entry_point: str, source: str) -> None:
@@ -102,12 +105,12 @@ def example_site(tmp_path_factory) -> Path:
 @pytest.fixture
 def example(example_site) -> Iterator[None]:
     with on_sys_path(example_site):
-        plugins.reload()
+        registry.reload()
         yield
 
 
 def test_example_is_listed_with_its_distribution_and_version(example, monkeypatch):
-    reg = plugins.registry()
+    reg = registry.loaded()
     assert reg.provider("task", EXAMPLE_TASK) == Provider(EXAMPLE_PLUGIN, EXAMPLE_DIST,
                                                           EXAMPLE_VERSION)
     assert reg.failures == []
@@ -118,16 +121,17 @@ def test_example_is_listed_with_its_distribution_and_version(example, monkeypatc
 
 def test_example_is_gone_once_uninstalled(example_site):
     with on_sys_path(example_site):
-        plugins.reload()
-        assert EXAMPLE_TASK in plugins.registry().names("task")
+        registry.reload()
+        assert EXAMPLE_TASK in registry.loaded().names("task")
     with pytest.raises(LabError, match=f"unknown task '{EXAMPLE_TASK}'"):
-        plugins.get_task(EXAMPLE_TASK)
+        registry.get_task(EXAMPLE_TASK)
 
 
 def test_example_task_runs_in_a_lab_env(example, tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
-    spec = plugins.get_task(EXAMPLE_TASK)
-    env = LabVecEnv(spec, spec.config(num_envs=8, episode_length_s=2.0), backend="cpu", seed=1)
+    spec = registry.get_task(EXAMPLE_TASK)
+    env = LabVecEnv(spec, spec.config_class(num_envs=8, episode_length_s=2.0), backend="cpu",
+                    seed=1)
     try:
         obs, _ = env.reset()
         assert obs.shape == (8, 6) and env.single_action_space.shape == (2,)
@@ -148,8 +152,8 @@ def test_example_task_runs_in_a_lab_env(example, tmp_path, monkeypatch):
 
 def test_example_task_ends_episodes_outside_its_arena(example, tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
-    spec = plugins.get_task(EXAMPLE_TASK)
-    env = LabVecEnv(spec, spec.config(num_envs=4, arena=0.1, start_range=0.0), backend="cpu")
+    spec = registry.get_task(EXAMPLE_TASK)
+    env = LabVecEnv(spec, spec.config_class(num_envs=4, arena=0.1, start_range=0.0), backend="cpu")
     try:
         env.reset()
         env.sim.qpos[:2] = 0.5
@@ -175,13 +179,13 @@ def test_example_trains_with_sb3(example, tmp_path, monkeypatch):
     assert summary["checkpoint"] == "model_2.zip"
     run_dir = outcome.run.dir
     assert run_dir.parent.name == EXAMPLE_TASK
-    env_params = yaml.safe_load((run_dir / runs.ENV_PARAMS).read_text())
-    agent_params = yaml.safe_load((run_dir / runs.AGENT_PARAMS).read_text())
+    env_params = yaml.safe_load((run_dir / rundir.ENV_PARAMS).read_text())
+    agent_params = yaml.safe_load((run_dir / rundir.AGENT_PARAMS).read_text())
     assert env_params["target_radius"] == 0.1  # the plugin's own config
     assert agent_params["gamma"] == 0.98  # the plugin's defaults for sb3
-    policy = plugins.get_framework("sb3").load_policy(
-        run_dir / "model_2.zip", LabVecEnv(plugins.get_task(EXAMPLE_TASK),
-                                           plugins.get_task(EXAMPLE_TASK).config(num_envs=1),
+    policy = registry.get_framework("sb3").load().load_policy(
+        run_dir / "model_2.zip", LabVecEnv(registry.get_task(EXAMPLE_TASK),
+                                           registry.get_task(EXAMPLE_TASK).config_class(num_envs=1),
                                            backend="cpu"))
     assert policy(torch.zeros(3, 6)).shape == (3, 2)
 
@@ -205,7 +209,7 @@ def test_docs_show_the_example_files_as_they_are(path):
 
 # Plugins registered into the manager for one test ----------------------------------------------
 def renamed_cartpole(name: str):
-    return dataclasses.replace(plugins.get_task("cartpole"), name=name)
+    return dataclasses.replace(registry.get_task("cartpole"), name=name)
 
 
 class CartpoleCopy:
@@ -231,29 +235,29 @@ class Broken:
 
 def test_a_registered_plugin_provides_its_task(register_plugin, tmp_path, monkeypatch):
     register_plugin(CartpoleCopy(), "copy")
-    spec = plugins.get_task("cartpole_copy")
-    assert plugins.registry().provider("task", "cartpole_copy") == Provider("copy", "copy",
+    spec = registry.get_task("cartpole_copy")
+    assert registry.loaded().provider("task", "cartpole_copy") == Provider("copy", "copy",
                                                                             NOT_INSTALLED)
     monkeypatch.chdir(tmp_path)
-    env = LabVecEnv(spec, spec.config(num_envs=2), backend="cpu")
+    env = LabVecEnv(spec, spec.config_class(num_envs=2), backend="cpu")
     env.reset()
     env.step(torch.zeros(2, 1))
     env.close()
     row = line_with("cartpole_copy", lab_list(monkeypatch))
     assert f"copy {NOT_INSTALLED}" in row
 
-    plugins.pm.unregister(name="copy")
-    plugins.reload()
+    registry.pm.unregister(name="copy")
+    registry.reload()
     with pytest.raises(LabError, match="unknown task 'cartpole_copy'"):
-        plugins.get_task("cartpole_copy")
+        registry.get_task("cartpole_copy")
 
 
 def test_a_hook_that_raises_is_a_failure_and_the_rest_keeps_working(register_plugin):
     register_plugin(Broken(), "robot")
-    reg = plugins.registry()
+    reg = registry.loaded()
     assert reg.failures == [PluginFailure("robot", Provider("robot", "robot", NOT_INSTALLED),
                                           "RuntimeError: robot.xml not found")]
-    assert plugins.get_wrapper("robot.noise") is NOISE  # its other hook still registered
+    assert registry.get_wrapper("robot.noise") is NOISE  # its other hook still registered
     assert "cartpole" in reg.names("task") and "sb3" in reg.names("framework")
 
 
@@ -270,7 +274,7 @@ def test_training_warns_of_a_plugin_that_failed(register_plugin, tmp_path):
 def test_a_task_from_a_failed_plugin_is_a_lab_error_naming_the_failure(register_plugin):
     register_plugin(Broken(), "robot")
     with pytest.raises(LabError) as err:
-        plugins.get_task("robot_arm")
+        registry.get_task("robot_arm")
     assert err.value.message == "unknown task 'robot_arm'"
     assert "known tasks: cartpole" in err.value.hint
     assert ("plugins that failed to load, which may provide it: 'robot' from robot "
@@ -303,7 +307,7 @@ def test_an_entry_point_that_fails_to_import_is_reported_by_name(tmp_path, monke
     write_dist(tmp_path, "lab-needs-libfoo", "0.2.0", "needs_libfoo",
                "import lab_libfoo_that_is_not_installed  # noqa: F401\n")
     with on_sys_path(tmp_path):
-        reg = plugins.reload()
+        reg = registry.reload()
         assert reg.failures == [PluginFailure(
             "needs_libfoo", Provider("needs_libfoo", "lab-needs-libfoo", "0.2.0"),
             "ModuleNotFoundError: No module named 'lab_libfoo_that_is_not_installed'")]
@@ -315,7 +319,7 @@ def test_an_entry_point_that_fails_to_import_is_reported_by_name(tmp_path, monke
 CARTPOLE_FORK = """
 import dataclasses
 from lab_cartpole.plugin import register_tasks as cartpole_tasks
-from labcli.hookspecs import hookimpl
+from labcli.plugins.hookspecs import hookimpl
 
 @hookimpl
 def register_tasks(register):
@@ -330,7 +334,7 @@ def test_two_distributions_registering_one_task_name_is_a_lab_error(tmp_path, mo
                CARTPOLE_FORK.format(name="cartpole"))
     with on_sys_path(tmp_path):
         with pytest.raises(LabError) as err:
-            plugins.reload()
+            registry.reload()
         message = str(err.value)
         assert "task 'cartpole' is registered twice" in message
         assert "lab (plugin 'cartpole')" in message
@@ -344,7 +348,7 @@ def test_a_clashing_entry_point_name_is_loaded_or_reported(tmp_path):
     write_dist(tmp_path, "lab-cartpole-pro", "1.0", "cartpole",
                CARTPOLE_FORK.format(name="cartpole_pro"))
     with on_sys_path(tmp_path):
-        reg = plugins.reload()
+        reg = registry.reload()
         # Which of the two is dropped depends on sys.path order and on what was loaded before.
         assert reg.provider("task", "cartpole").dist == "lab"
         assert "cartpole_pro" in reg.names("task") or any(

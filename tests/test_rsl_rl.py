@@ -14,15 +14,19 @@ import numpy as np
 import pytest
 import torch
 from lab_rsl_rl.adapter import OBS_GROUP, RslRlVecEnv
-from lab_rsl_rl.framework import INFO_KEY, RslRlFramework, RslRlPpoConfig, runner_config
+from lab_rsl_rl.config import RslRlPpoConfig
+from lab_rsl_rl.framework import INFO_KEY, RslRlFramework, runner_config
+from lab_rsl_rl.plugin import SPEC
 from rich.console import Console
 from rsl_rl.models import MLPModel
 from tensordict import TensorDict
 
-from labcli import plugins, runs, testing, training
-from labcli.env import LabVecEnv
+from labcli import testing
+from labcli.envs.env import LabVecEnv
 from labcli.errors import LabError
-from labcli.framework import ObsNormalizer
+from labcli.plugins import registry
+from labcli.plugins.policy import ObsNormalizer
+from labcli.runs import checkpoints, rundir, training
 
 NUM_ENVS = 4
 STEPS = 8  # num_steps_per_env
@@ -47,9 +51,9 @@ def trained(tmp_path_factory) -> training.TrainOutcome:
 
 
 def test_registered_with_its_adapter():
-    fw = plugins.get_framework("rsl_rl")
+    fw = registry.get_framework("rsl_rl").load()
     assert isinstance(fw, RslRlFramework)
-    adapter = plugins.get_wrapper("rsl_rl.adapter")
+    adapter = registry.get_wrapper("rsl_rl.adapter")
     assert adapter.framework == "rsl_rl"
     assert [step.spec for step in fw.pipeline(fw.agent_config())] == [adapter]
 
@@ -94,7 +98,7 @@ def test_training_writes_checkpoints_and_summary(trained):
     assert sorted(p.name for p in run_dir.glob("model_*.pt")) == ["model_2.pt", "model_3.pt"]
     assert not list(run_dir.glob(".tmp_*"))
     assert not (run_dir / "git").exists()  # RSL-RL's own logger (git diffs, saves) stays off
-    summary = json.loads((run_dir / runs.SUMMARY).read_text())
+    summary = json.loads((run_dir / rundir.SUMMARY).read_text())
     assert summary["state"] == "finished"
     assert summary["iterations"] == 3 and summary["steps"] == 3 * PER_ITERATION
     assert summary["checkpoint"] == "model_3.pt"
@@ -113,7 +117,7 @@ def test_training_keeps_rsl_rl_quiet(tmp_path, capfd):
 
 def test_policy_includes_the_trained_normalizer(trained):
     checkpoint = trained.run.dir / "model_3.pt"
-    policy = RslRlFramework().load_policy(checkpoint, make_env())
+    policy = RslRlFramework(SPEC).load_policy(checkpoint, make_env())
     assert isinstance(policy.normalizer, ObsNormalizer)
 
     # The actor as RSL-RL itself builds and runs it, normalizer inside.
@@ -138,14 +142,14 @@ def test_policy_includes_the_trained_normalizer(trained):
 
 def test_policy_without_normalization(tmp_path):
     outcome = train(tmp_path, 1, ["agent.empirical_normalization=false"])
-    policy = RslRlFramework().load_policy(outcome.run.dir / "model_1.pt", make_env())
+    policy = RslRlFramework(SPEC).load_policy(outcome.run.dir / "model_1.pt", make_env())
     assert isinstance(policy.normalizer, torch.nn.Identity)
 
 
 def test_resume_continues_iterations_optimizer_and_normalizer(tmp_path):
     first = train(tmp_path, 2)
     before = torch.load(first.run.dir / "model_2.pt", weights_only=True)
-    second = train(tmp_path, 4, checkpoint=training.LATEST)
+    second = train(tmp_path, 4, checkpoint=checkpoints.LATEST)
     assert second.run.dir == first.run.dir
     assert second.summary["iterations"] == 4 and second.summary["steps"] == 4 * PER_ITERATION
     after = torch.load(first.run.dir / "model_4.pt", weights_only=True)
@@ -163,7 +167,7 @@ def test_resume_continues_iterations_optimizer_and_normalizer(tmp_path):
 def test_resume_with_another_network_raises_lab_error(tmp_path):
     train(tmp_path, 1)
     with pytest.raises(LabError) as err:
-        train(tmp_path, 2, ["agent.actor_hidden_dims=[8]"], checkpoint=training.LATEST)
+        train(tmp_path, 2, ["agent.actor_hidden_dims=[8]"], checkpoint=checkpoints.LATEST)
     assert "model_1.pt" in str(err.value) and "\n" not in str(err.value)
 
 
@@ -185,7 +189,7 @@ def test_stop_mid_rollout_leaves_a_loadable_checkpoint(tmp_path, monkeypatch):
     assert calls == STEPS + 3  # stopped at once, not at the end of the rollout
     checkpoint = outcome.run.dir / "model_1.pt"
     assert checkpoint.is_file() and not (outcome.run.dir / "model_2.pt").exists()
-    RslRlFramework().load_policy(checkpoint, make_env())
+    RslRlFramework(SPEC).load_policy(checkpoint, make_env())
 
 
 def test_mismatched_sizes_raise_lab_error(trained):
@@ -194,7 +198,7 @@ def test_mismatched_sizes_raise_lab_error(trained):
         single_action_space=gym.spaces.Box(-1.0, 1.0, (1,), np.float32),
         task_spec=SimpleNamespace(name="other"))
     with pytest.raises(LabError) as err:
-        RslRlFramework().load_policy(trained.run.dir / "model_3.pt", other)
+        RslRlFramework(SPEC).load_policy(trained.run.dir / "model_3.pt", other)
     assert "observation size 4" in str(err.value) and "has 5" in str(err.value)
     assert "\n" not in str(err.value)
 
@@ -214,7 +218,7 @@ def test_unreadable_checkpoints_raise_lab_error(tmp_path, trained, content):
     elif content is not None:
         path.write_bytes(content)
     with pytest.raises(LabError) as err:
-        RslRlFramework().load_policy(path, make_env())
+        RslRlFramework(SPEC).load_policy(path, make_env())
     assert "model_7.pt" in str(err.value) and "\n" not in str(err.value)
 
 

@@ -12,8 +12,10 @@ from datetime import datetime
 import yaml
 from rich.console import Console
 
-from labcli import metrics, runs, testing, training
-from labcli.plot import read_scalars
+from labcli import testing
+from labcli.envs import metrics
+from labcli.runs import rundir, training
+from labcli.runs.plot import read_scalars
 
 
 class FrozenClock(datetime):
@@ -23,39 +25,41 @@ class FrozenClock(datetime):
 
 
 def test_runs_started_in_the_same_second_get_distinct_dirs(tmp_path, monkeypatch):
-    monkeypatch.setattr(runs, "datetime", FrozenClock)
-    made = [runs.create(tmp_path, "sb3", "cartpole", "same").dir for _ in range(3)]
+    monkeypatch.setattr(rundir, "datetime", FrozenClock)
+    made = [rundir.create(tmp_path, "sb3", "cartpole", "same").dir for _ in range(3)]
     assert [d.name for d in made] == ["2026-01-02_03-04-05_same", "2026-01-02_03-04-05_same-1",
                                       "2026-01-02_03-04-05_same-2"]
     assert all(d.is_dir() for d in made)
 
 
-def write_run(tmp_path, manifest: dict, summary: dict | None = None) -> runs.Run:
-    run = runs.Run(tmp_path)
-    runs.write_json(tmp_path / runs.MANIFEST, manifest)
+def write_run(tmp_path, manifest: dict, summary: dict | None = None) -> rundir.Run:
+    run = rundir.Run(tmp_path)
+    rundir.write_json(tmp_path / rundir.MANIFEST, manifest)
     if summary is not None:
-        runs.write_json(tmp_path / runs.SUMMARY, summary)
+        rundir.write_json(tmp_path / rundir.SUMMARY, summary)
     return run
 
 
 def test_run_state_follows_the_summary_and_the_process(tmp_path):
-    me = runs.process_identity()
+    me = rundir.process_identity()
     assert me["pid"] == os.getpid() and me["pid_started"] is not None
-    running = {"state": runs.RUNNING, **me}
-    assert runs.run_state(write_run(tmp_path, running, {"state": runs.RUNNING})) == runs.RUNNING
-    for state in (runs.FINISHED, runs.INTERRUPTED, runs.FAILED):
-        assert runs.run_state(write_run(tmp_path, running, {"state": state})) == state
+    running = {"state": rundir.RUNNING, **me}
+    assert rundir.run_state(write_run(tmp_path, running, {"state": rundir.RUNNING})) == \
+        rundir.RUNNING
+    for state in (rundir.FINISHED, rundir.INTERRUPTED, rundir.FAILED):
+        assert rundir.run_state(write_run(tmp_path, running, {"state": state})) == state
     gone = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"],
                           capture_output=True, text=True, check=True)
     dead = {**running, "pid": int(gone.stdout)}  # a process that ended without a summary
-    assert runs.run_state(write_run(tmp_path, dead, {"state": runs.RUNNING})) == runs.FAILED
+    assert rundir.run_state(write_run(tmp_path, dead, {"state": rundir.RUNNING})) == rundir.FAILED
     reused = {**running, "pid_started": me["pid_started"] - 1}  # same pid, another process
-    assert runs.run_state(write_run(tmp_path, reused, {"state": runs.RUNNING})) == runs.FAILED
+    assert rundir.run_state(write_run(tmp_path, reused, {"state": rundir.RUNNING})) == rundir.FAILED
     elsewhere = {**dead, "host": "another-machine"}  # cannot be checked: trusted
-    assert runs.run_state(write_run(tmp_path, elsewhere, {"state": runs.RUNNING})) == runs.RUNNING
-    (tmp_path / runs.SUMMARY).unlink()  # summary not written yet: the manifest says
-    assert runs.run_state(write_run(tmp_path, running)) == runs.RUNNING
-    assert json.loads((tmp_path / runs.MANIFEST).read_text())["pid"] == os.getpid()
+    assert rundir.run_state(write_run(tmp_path, elsewhere, {"state": rundir.RUNNING})) == \
+        rundir.RUNNING
+    (tmp_path / rundir.SUMMARY).unlink()  # summary not written yet: the manifest says
+    assert rundir.run_state(write_run(tmp_path, running)) == rundir.RUNNING
+    assert json.loads((tmp_path / rundir.MANIFEST).read_text())["pid"] == os.getpid()
 
 
 def test_a_run_is_reproduced_from_its_params_dir(tmp_path):

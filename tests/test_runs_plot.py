@@ -15,8 +15,9 @@ import matplotlib.image
 import pytest
 from rich.console import Console
 
-from labcli import metrics, plot, runs, training
+from labcli.envs import metrics
 from labcli.errors import LabError
+from labcli.runs import plot, rundir, training
 from labcli.testing import SHORT_EPISODE, train_small
 
 SMALL = ["agent.n_steps=8", "agent.batch_size=16", "agent.n_epochs=1", SHORT_EPISODE]
@@ -41,40 +42,40 @@ def fake_run(logs: Path, name: str, **manifest) -> Path:
     base = {"task": "cartpole", "framework": "rsl_rl", "state": "running",
             "started": datetime.now().isoformat(timespec="seconds"),
             "host": socket.gethostname(), "pid": os.getpid()}
-    runs.write_json(run / runs.MANIFEST, {**base, **manifest})
+    rundir.write_json(run / rundir.MANIFEST, {**base, **manifest})
     return run
 
 
 def test_finished_runs_show_their_summary(logs):
-    rows = runs.table(logs)
+    rows = rundir.table(logs)
     assert [(r.framework, r.task) for r in rows] == [
         ("sb3", "gym:InvertedPendulum-v5"), ("skrl", "cartpole"), ("sb3", "cartpole")]
     for row in rows:
-        summary = json.loads((row.dir / runs.SUMMARY).read_text())
+        summary = json.loads((row.dir / rundir.SUMMARY).read_text())
         assert row.state == "finished" and row.steps == summary["steps"] > 0
         assert row.mean_return == summary["mean_return"] and row.wall_time_s > 0
-    assert [r.framework for r in runs.table(logs, task="cartpole")] == ["skrl", "sb3"]
-    assert [r.task for r in runs.table(logs, framework="skrl")] == ["cartpole"]
+    assert [r.framework for r in rundir.table(logs, task="cartpole")] == ["skrl", "sb3"]
+    assert [r.task for r in rundir.table(logs, framework="skrl")] == ["cartpole"]
 
 
 def test_run_name_is_what_follows_the_time_stamp():
-    assert runs.run_name(Path("2026-11-23_13-38-38_peer_2")) == "peer_2"
-    assert runs.run_name(Path("2026-11-23_13-38-38")) == ""
-    assert runs.run_name(Path("2026-11-23_13-38-38-1")) == "-1"  # second run of that second
+    assert rundir.run_name(Path("2026-11-23_13-38-38_peer_2")) == "peer_2"
+    assert rundir.run_name(Path("2026-11-23_13-38-38")) == ""
+    assert rundir.run_name(Path("2026-11-23_13-38-38-1")) == "-1"  # second run of that second
 
 
 def test_the_table_states_come_from_run_state(tmp_path):
-    """Each row's state is `runs.run_state`'s (its cases are tested in test_runs.py): a live
+    """Each row's state is `rundir.run_state`'s (its cases are tested in test_runs.py): a live
     process of this host runs, a dead one failed, an ended run says how it ended."""
     dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"],
                           capture_output=True, text=True, check=True)
-    fake_run(tmp_path, "alive", **runs.process_identity())
+    fake_run(tmp_path, "alive", **rundir.process_identity())
     fake_run(tmp_path, "dead_pid", pid=int(dead.stdout))
     interrupted = fake_run(tmp_path, "interrupted")
-    runs.write_json(interrupted / runs.SUMMARY, {"state": "interrupted", "steps": 64})
-    states = {row.dir.name: row.state for row in runs.table(tmp_path)}
+    rundir.write_json(interrupted / rundir.SUMMARY, {"state": "interrupted", "steps": 64})
+    states = {row.dir.name: row.state for row in rundir.table(tmp_path)}
     assert states == {"alive": "running", "dead_pid": "failed", "interrupted": "interrupted"}
-    (running,) = runs.table(tmp_path, state="running")
+    (running,) = rundir.table(tmp_path, state="running")
     assert running.steps is None and running.wall_time_s is not None
 
 

@@ -14,14 +14,16 @@ import pytest
 import torch
 from lab_sb3.adapter import Sb3VecEnv
 from lab_sb3.framework import Sb3Framework
+from lab_sb3.plugin import SPEC
 from rich.console import Console
 from stable_baselines3 import PPO
 from stable_baselines3.common.vec_env import VecNormalize
 
-from labcli import runs, testing, training
-from labcli.env import LabVecEnv
+from labcli import testing
+from labcli.envs.env import LabVecEnv
 from labcli.errors import LabError
-from labcli.framework import ObsNormalizer
+from labcli.plugins.policy import ObsNormalizer
+from labcli.runs import checkpoints, rundir, training
 
 NUM_ENVS = 4
 N_STEPS = 8
@@ -74,18 +76,18 @@ def test_training_writes_run_dir_checkpoints_normalizer_and_tensorboard(trained)
     assert sorted(p.name for p in run_dir.glob("vecnormalize_*.pkl")) == [
         "vecnormalize_2.pkl", "vecnormalize_3.pkl"]
     assert not list(run_dir.glob(".tmp_*"))
-    for name in (runs.ENV_PARAMS, runs.AGENT_PARAMS, runs.COMMAND, runs.MANIFEST):
+    for name in (rundir.ENV_PARAMS, rundir.AGENT_PARAMS, rundir.COMMAND, rundir.MANIFEST):
         assert (run_dir / name).is_file()
-    summary = json.loads((run_dir / runs.SUMMARY).read_text())
+    summary = json.loads((run_dir / rundir.SUMMARY).read_text())
     assert summary["state"] == "finished" and summary["checkpoint"] == "model_3.zip"
     assert summary["iterations"] == 3 and summary["steps"] == 3 * PER_ITERATION
-    assert json.loads((run_dir / runs.MANIFEST).read_text())["state"] == "finished"
+    assert json.loads((run_dir / rundir.MANIFEST).read_text())["state"] == "finished"
     assert list(run_dir.glob("events.out.tfevents.*"))
 
 
 def test_policy_includes_the_saved_normalizer(trained):
     checkpoint = trained.run.dir / "model_3.zip"
-    policy = Sb3Framework().load_policy(checkpoint, make_env())
+    policy = Sb3Framework(SPEC).load_policy(checkpoint, make_env())
     assert isinstance(policy.normalizer, ObsNormalizer)
     model = PPO.load(checkpoint, device="cpu")
     vecnorm = Sb3Framework.normalizer_path(checkpoint)
@@ -100,13 +102,13 @@ def test_policy_includes_the_saved_normalizer(trained):
 def test_policy_without_normalization(tmp_path):
     outcome = train(tmp_path, 1, ["agent.normalize_obs=false"])
     assert not list(outcome.run.dir.glob("vecnormalize_*"))
-    policy = Sb3Framework().load_policy(outcome.run.dir / "model_1.zip", make_env())
+    policy = Sb3Framework(SPEC).load_policy(outcome.run.dir / "model_1.zip", make_env())
     assert isinstance(policy.normalizer, torch.nn.Identity)
 
 
 def test_resume_continues_iterations_steps_and_normalizer(tmp_path):
     first = train(tmp_path, 2)
-    second = train(tmp_path, 4, checkpoint=training.LATEST)
+    second = train(tmp_path, 4, checkpoint=checkpoints.LATEST)
     assert second.run.dir == first.run.dir
     assert second.summary["iterations"] == 4 and second.summary["steps"] == 4 * PER_ITERATION
     assert PPO.load(first.run.dir / "model_4.zip").num_timesteps == 4 * PER_ITERATION
@@ -131,8 +133,8 @@ def test_stop_mid_rollout_leaves_a_loadable_checkpoint(tmp_path, monkeypatch):
     assert outcome.summary["state"] == "interrupted"
     checkpoints = sorted(outcome.run.dir.glob("model_*.zip"))
     assert checkpoints, "an interrupted run keeps a checkpoint"
-    Sb3Framework().load_policy(checkpoints[-1], make_env())
-    assert json.loads((outcome.run.dir / runs.MANIFEST).read_text())["state"] == "interrupted"
+    Sb3Framework(SPEC).load_policy(checkpoints[-1], make_env())
+    assert json.loads((outcome.run.dir / rundir.MANIFEST).read_text())["state"] == "interrupted"
 
 
 @pytest.mark.parametrize("content", [b"not a zip", b""])
@@ -140,7 +142,7 @@ def test_corrupt_checkpoints_raise_lab_error(tmp_path, content):
     path = tmp_path / "model_7.zip"
     path.write_bytes(content)
     with pytest.raises(LabError) as err:
-        Sb3Framework().load_policy(path, make_env())
+        Sb3Framework(SPEC).load_policy(path, make_env())
     assert "model_7.zip" in str(err.value) and "\n" not in str(err.value)
 
 

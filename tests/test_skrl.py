@@ -14,14 +14,18 @@ import numpy as np
 import pytest
 import torch
 from lab_skrl.adapter import SkrlEnv
-from lab_skrl.framework import META, SkrlFramework, SkrlPPOConfig, _collect_and_update, make_agent
+from lab_skrl.config import SkrlPPOConfig
+from lab_skrl.framework import META, SkrlFramework, _collect_and_update, make_agent
+from lab_skrl.plugin import SPEC
 from rich.console import Console
 from skrl.resources.preprocessors.torch import RunningStandardScaler
 
-from labcli import plugins, runs, testing, training
-from labcli.env import LabVecEnv
+from labcli import testing
+from labcli.envs.env import LabVecEnv
 from labcli.errors import LabError
-from labcli.framework import ObsNormalizer
+from labcli.plugins import registry
+from labcli.plugins.policy import ObsNormalizer
+from labcli.runs import checkpoints, rundir, training
 
 NUM_ENVS = 4
 ROLLOUTS = 8
@@ -44,9 +48,9 @@ def trained(tmp_path_factory) -> training.TrainOutcome:
 
 
 def test_registered_with_its_adapter():
-    fw = plugins.get_framework("skrl")
+    fw = registry.get_framework("skrl").load()
     assert isinstance(fw, SkrlFramework)
-    adapter = plugins.get_wrapper("skrl.adapter")
+    adapter = registry.get_wrapper("skrl.adapter")
     assert adapter.framework == "skrl"
     assert [step.spec for step in fw.pipeline(fw.agent_config())] == [adapter]
 
@@ -121,7 +125,7 @@ def test_training_writes_checkpoints_and_summary(trained):
     run_dir = trained.run.dir
     assert sorted(p.name for p in run_dir.glob("model_*.pt")) == ["model_2.pt", "model_3.pt"]
     assert not list(run_dir.glob(".tmp_*"))
-    summary = json.loads((run_dir / runs.SUMMARY).read_text())
+    summary = json.loads((run_dir / rundir.SUMMARY).read_text())
     assert summary["state"] == "finished"
     assert summary["iterations"] == 3 and summary["steps"] == 3 * PER_ITERATION
     assert summary["checkpoint"] == "model_3.pt"
@@ -141,7 +145,7 @@ def test_training_keeps_skrl_quiet(tmp_path, capfd):
 def test_policy_includes_the_trained_normalizer(trained):
     checkpoint = trained.run.dir / "model_3.pt"
     env = make_env()
-    policy = SkrlFramework().load_policy(checkpoint, env)
+    policy = SkrlFramework(SPEC).load_policy(checkpoint, env)
     assert isinstance(policy.normalizer, ObsNormalizer)
 
     saved = torch.load(checkpoint, weights_only=True)
@@ -161,14 +165,14 @@ def test_policy_includes_the_trained_normalizer(trained):
 
 def test_policy_without_normalization(tmp_path):
     outcome = train(tmp_path, 1, ["agent.normalize_obs=false"])
-    policy = SkrlFramework().load_policy(outcome.run.dir / "model_1.pt", make_env())
+    policy = SkrlFramework(SPEC).load_policy(outcome.run.dir / "model_1.pt", make_env())
     assert isinstance(policy.normalizer, torch.nn.Identity)
 
 
 def test_resume_continues_iterations_optimizer_and_normalizer(tmp_path):
     first = train(tmp_path, 2)
     before = torch.load(first.run.dir / "model_2.pt", weights_only=True)
-    second = train(tmp_path, 4, checkpoint=training.LATEST)
+    second = train(tmp_path, 4, checkpoint=checkpoints.LATEST)
     assert second.run.dir == first.run.dir
     assert second.summary["iterations"] == 4 and second.summary["steps"] == 4 * PER_ITERATION
     after = torch.load(first.run.dir / "model_4.pt", weights_only=True)
@@ -198,7 +202,7 @@ def test_stop_mid_rollout_leaves_a_loadable_checkpoint(tmp_path, monkeypatch):
     assert calls == ROLLOUTS + 3  # stopped at once, not at the end of the rollout
     checkpoint = outcome.run.dir / "model_1.pt"
     assert checkpoint.is_file()
-    SkrlFramework().load_policy(checkpoint, make_env())
+    SkrlFramework(SPEC).load_policy(checkpoint, make_env())
 
 
 def test_mismatched_sizes_raise_lab_error(trained):
@@ -207,7 +211,7 @@ def test_mismatched_sizes_raise_lab_error(trained):
         single_action_space=gym.spaces.Box(-1.0, 1.0, (1,), np.float32),
         task_spec=SimpleNamespace(name="other"))
     with pytest.raises(LabError) as err:
-        SkrlFramework().load_policy(trained.run.dir / "model_3.pt", other)
+        SkrlFramework(SPEC).load_policy(trained.run.dir / "model_3.pt", other)
     assert "observation size 4" in str(err.value) and "has 5" in str(err.value)
     assert "\n" not in str(err.value)
 
@@ -220,7 +224,7 @@ def test_unreadable_checkpoints_raise_lab_error(tmp_path, content):
     elif content is not None:
         path.write_bytes(content)
     with pytest.raises(LabError) as err:
-        SkrlFramework().load_policy(path, make_env())
+        SkrlFramework(SPEC).load_policy(path, make_env())
     assert "model_7.pt" in str(err.value) and "\n" not in str(err.value)
 
 

@@ -12,10 +12,13 @@ import pytest
 import torch
 from typer.testing import CliRunner
 
-from labcli import metrics, plugins, runs, testing
-from labcli.cli import app
+from labcli import testing
+from labcli.commands.app import app
+from labcli.envs import metrics
 from labcli.errors import TrainingDiverged
-from labcli.plot import read_scalars
+from labcli.plugins import registry
+from labcli.runs import rundir
+from labcli.runs.plot import read_scalars
 
 SMALL = testing.SMALL_AGENTS
 # 1e8 N on a 1 kg cart: strong pushes blow past MuJoCo's limits (or lab's) at once, weak ones
@@ -26,7 +29,7 @@ EXPLODING = "env.action_scale=1e9"
 def finite_policy(name: str, checkpoint: Path) -> bool:
     env = testing.make_env()
     try:
-        policy = plugins.get_framework(name).load_policy(checkpoint, env)
+        policy = registry.get_framework(name).load().load_policy(checkpoint, env)
     finally:
         env.close()
     return all(torch.isfinite(t).all() for t in [*policy.parameters(), *policy.buffers()])
@@ -37,7 +40,7 @@ def test_exploding_envs_are_reset_counted_and_keep_nan_from_the_learner(name, tm
                                                                         monkeypatch, capfd):
     monkeypatch.chdir(tmp_path)  # where MuJoCo would write MUJOCO_LOG.TXT
     outcome = testing.train_small(name, tmp_path / "logs", 3, [*SMALL[name], EXPLODING])
-    assert outcome.summary["state"] == runs.FINISHED
+    assert outcome.summary["state"] == rundir.FINISHED
     scalars = read_scalars(outcome.run.dir)
     assert sum(v for _, v in scalars[metrics.INSTABILITIES]) > 0
     assert sum(v for _, v in scalars[metrics.MUJOCO_WARNINGS]) > 0
@@ -46,7 +49,7 @@ def test_exploding_envs_are_reset_counted_and_keep_nan_from_the_learner(name, tm
         if tag == "train/explained_variance":
             continue  # SB3's diagnostic is NaN by definition when every return is the same
         assert all(math.isfinite(v) for _, v in values), f"{tag}: {values}"
-    assert finite_policy(name, plugins.get_framework(name).checkpoints(outcome.run.dir)[-1].path)
+    assert finite_policy(name, registry.get_framework(name).checkpoints(outcome.run.dir)[-1].path)
     # Counted, not printed: no flood on stderr, no log file in the working directory.
     assert "WARNING" not in capfd.readouterr().err
     assert not (tmp_path / "MUJOCO_LOG.TXT").exists()
@@ -109,16 +112,16 @@ def test_a_diverged_update_stops_training_and_keeps_the_last_good_checkpoint(
     assert "iteration 3:" in message and "non-finite values" in message
     assert "\n" not in message
     (run_dir,) = {p.parent for p in tmp_path.glob("*/cartpole/*/run.json")}
-    fw = plugins.get_framework(name)
+    fw = registry.get_framework(name)
     good = fw.checkpoints(run_dir)[-1]
     assert good.iteration == 2 and good.path.name in message  # kept since, saved on failure
     assert finite_policy(name, good.path)
     assert (run_dir / "state_2.pt").is_file()  # it resumes exactly, too
     assert not list(run_dir.glob(".candidate")) and not list(run_dir.glob(".good"))
-    summary = json.loads((run_dir / runs.SUMMARY).read_text())
-    assert summary["state"] == runs.FAILED and summary["checkpoint"] == good.path.name
+    summary = json.loads((run_dir / rundir.SUMMARY).read_text())
+    assert summary["state"] == rundir.FAILED and summary["checkpoint"] == good.path.name
     assert summary["error"] == err.value.message
-    assert runs.run_state(runs.Run(run_dir)) == runs.FAILED
+    assert rundir.run_state(rundir.Run(run_dir)) == rundir.FAILED
     assert not list(run_dir.glob(".tmp_*"))
 
 
@@ -144,7 +147,7 @@ def test_nan_actions_from_finite_weights_stop_training(tmp_path, monkeypatch):
     # The weights after update 2 acted in the bad rollout; those after update 1 did well.
     assert "The last good checkpoint is model_1.zip." in str(err.value)
     (run_dir,) = {p.parent for p in tmp_path.glob("sb3/cartpole/*/run.json")}
-    assert [c.iteration for c in plugins.get_framework("sb3").checkpoints(run_dir)] == [1]
+    assert [c.iteration for c in registry.get_framework("sb3").checkpoints(run_dir)] == [1]
     assert (run_dir / "vecnormalize_1.pkl").is_file()
 
 
@@ -160,7 +163,7 @@ def test_a_diverging_cli_run_is_one_line_and_exit_code_3(tmp_path):
     assert "Traceback" not in result.stderr
     assert "Traceback" not in result.output
     (summary,) = logs.glob("sb3/cartpole/*/summary.json")
-    assert json.loads(summary.read_text())["state"] == runs.FAILED
+    assert json.loads(summary.read_text())["state"] == rundir.FAILED
 
 
 def test_kept_states_of_a_killed_run_are_never_committed(tmp_path, monkeypatch):
@@ -175,4 +178,4 @@ def test_kept_states_of_a_killed_run_are_never_committed(tmp_path, monkeypatch):
     with pytest.raises(TrainingDiverged) as err:
         testing.train_small("sb3", tmp_path, 5, SMALL["sb3"], checkpoint="latest")
     assert "iteration 3:" in str(err.value) and "model_2.zip" in str(err.value)
-    assert [c.iteration for c in plugins.get_framework("sb3").checkpoints(run_dir)] == [2]
+    assert [c.iteration for c in registry.get_framework("sb3").checkpoints(run_dir)] == [2]

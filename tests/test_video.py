@@ -10,11 +10,13 @@ import numpy as np
 import pytest
 from rich.console import Console
 
-from labcli import gl, plugins, training, video
+from labcli.envs.render import gl
+from labcli.envs.render.scene import HEIGHT, WIDTH
+from labcli.envs.wrappers import Step, validate
 from labcli.errors import LabError
-from labcli.play import Agent, Show, play, sanity
-from labcli.rendering import HEIGHT, WIDTH
-from labcli.wrappers import Step, validate
+from labcli.plugins import registry
+from labcli.runs import training, video
+from labcli.runs.play import Agent, Show, play, sanity
 
 # Cartpole steps 0.02 s: 0.3 s episodes end after 15 steps.
 SMALL = ["agent.n_steps=8", "agent.batch_size=16", "agent.n_epochs=1", "env.episode_length_s=0.3"]
@@ -48,7 +50,7 @@ def trained(tmp_path_factory) -> training.TrainOutcome:
 
 def test_headless_default_is_egl():
     if not gl.has_display():
-        assert gl.backend() == gl.HEADLESS
+        assert gl.backend() == gl.HEADLESS[0]
 
 
 def test_train_video_records_env_0_at_the_interval(trained):
@@ -75,11 +77,11 @@ def test_sanity_agent_video_outside_any_run(tmp_path):
 
 
 def test_the_video_wrapper_must_come_before_the_adapter():
-    adapter = plugins.get_wrapper("sb3.adapter")
+    adapter = registry.get_wrapper("sb3.adapter")
     validate([video.VideoSettings().step(Path("v")), Step(adapter)], "sb3")
     with pytest.raises(LabError, match="wrapper 'video' .env stage. comes after 'sb3.adapter'"):
         validate([Step(adapter), video.VideoSettings().step(Path("v"))], "sb3")
-    assert plugins.get_wrapper("video") is video.VIDEO  # registered like any plugin's
+    assert registry.get_wrapper("video") is video.VIDEO  # registered like any plugin's
 
 
 @pytest.mark.parametrize("length, interval", [(1, 10), (10, 0)])

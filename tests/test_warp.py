@@ -13,13 +13,14 @@ import sys
 import mujoco
 import pytest
 import torch
-from lab_cartpole.cartpole import MODEL, Cartpole, CartpoleConfig
+from lab_cartpole.cartpole import Cartpole
+from lab_cartpole.config import MODEL, CartpoleConfig
 
-from labcli import metrics
-from labcli.env import LabVecEnv
+from labcli.envs import metrics
+from labcli.envs.env import LabVecEnv
+from labcli.envs.sim import default_backend, make_sim
+from labcli.envs.spec import TaskSpec
 from labcli.errors import LabError
-from labcli.sim import default_backend, make_sim
-from labcli.task import TaskSpec
 
 HAVE_WARP = all(importlib.util.find_spec(m) for m in ("warp", "mujoco_warp"))
 on_gpu = pytest.mark.skipif(not (HAVE_WARP and torch.cuda.is_available()),
@@ -43,7 +44,7 @@ def cartpole_model() -> mujoco.MjModel:
 
 # Without a GPU (CI too): lab imports and explains ----------------------------------------------
 def test_lab_imports_without_warp():
-    code = ("import sys, labcli.sim, labcli.env, labcli.training; "
+    code = ("import sys, labcli.envs.sim, labcli.envs.env, labcli.runs.session; "
             "sys.exit(int('warp' in sys.modules or 'mujoco_warp' in sys.modules))")
     assert subprocess.run([sys.executable, "-c", code]).returncode == 0
 

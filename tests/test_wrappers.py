@@ -17,14 +17,16 @@ from hypothesis import given
 from hypothesis import strategies as st
 from lab_sb3.adapter import Sb3VecEnv
 from lab_sb3.framework import Sb3Framework
+from lab_sb3.plugin import SPEC as SB3
 from rich.console import Console
 from stable_baselines3.common.vec_env import VecNormalize
 
-from labcli import plugins, training
-from labcli.env import LabVecEnv
+from labcli.envs.env import LabVecEnv
+from labcli.envs.wrappers import Stage, Step, WrapperSpec, apply, validate
 from labcli.errors import LabError
-from labcli.hookspecs import hookimpl
-from labcli.wrappers import Stage, Step, WrapperSpec, apply, validate
+from labcli.plugins import registry
+from labcli.plugins.hookspecs import hookimpl
+from labcli.runs import training
 
 ORDER_RULE = "order is env wrappers, then the one adapter, then framework wrappers"
 
@@ -55,14 +57,14 @@ NOISE = WrapperSpec("obs_noise", Stage.ENV, ObservationNoise, description="Gauss
 
 
 def registered(name: str) -> WrapperSpec:
-    return plugins.get_wrapper(name)
+    return registry.get_wrapper(name)
 
 
 @pytest.fixture
 def env(tmp_path, monkeypatch) -> Iterator[LabVecEnv]:
     monkeypatch.chdir(tmp_path)  # MuJoCo's warning log, should it write one
-    spec = plugins.get_task("cartpole")
-    env = LabVecEnv(spec, spec.config(num_envs=4), backend="cpu")
+    spec = registry.get_task("cartpole")
+    env = LabVecEnv(spec, spec.config_class(num_envs=4), backend="cpu")
     yield env
     env.close()
 
@@ -91,7 +93,7 @@ def test_registered_wrappers_declare_their_stage_and_framework():
 
 @pytest.mark.parametrize("name", ["sb3", "rsl_rl", "skrl"])
 def test_every_frameworks_own_pipeline_is_valid(name):
-    fw = plugins.get_framework(name)
+    fw = registry.get_framework(name).load()
     pipeline = fw.pipeline(fw.agent_config())
     validate(pipeline, name)
     adapter = pipeline[0].spec
@@ -171,11 +173,12 @@ def test_a_wrong_pipeline_is_refused_before_anything_is_built(wrappers, framewor
     assert "\n" not in str(err.value)
 
 
+MISORDERED = "sb3_misordered"
+
+
 class _MisorderedSb3(Sb3Framework):
     """SB3 under another name, its VecNormalize put in front of its adapter: a plugin author's
     mistake."""
-
-    name = "sb3_misordered"
 
     def pipeline(self, cfg):
         steps = [Step(dataclasses.replace(step.spec, name=f"{self.name}.{step.spec.name}",
@@ -187,17 +190,17 @@ class _MisorderedSb3(Sb3Framework):
 class _MisorderedPlugin:
     @hookimpl
     def register_frameworks(self, register):
-        register(_MisorderedSb3())
+        register(dataclasses.replace(SB3, name=MISORDERED, framework=_MisorderedSb3, wrappers=()))
 
 
 @pytest.fixture
 def misordered_framework() -> Iterator[str]:
     plugin = _MisorderedPlugin()
-    plugins.pm.register(plugin, name="test-misordered")
-    plugins.reload()
-    yield _MisorderedSb3.name
-    plugins.pm.unregister(plugin)
-    plugins.reload()
+    registry.pm.register(plugin, name="test-misordered")
+    registry.reload()
+    yield MISORDERED
+    registry.pm.unregister(plugin)
+    registry.reload()
 
 
 def test_train_refuses_a_misordered_framework_before_writing_a_run(misordered_framework,

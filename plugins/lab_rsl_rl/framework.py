@@ -6,53 +6,25 @@ import contextlib
 import io
 import pickle
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any
 
 import torch
-from pydantic import Field
 from rsl_rl.models import MLPModel
 from rsl_rl.runners import OnPolicyRunner
 from tensordict import TensorDict
 from torch import nn
 
 from lab_rsl_rl.adapter import OBS_GROUP, RslRlVecEnv
-from labcli.errors import LabError
-from labcli.framework import AgentConfig, Framework, ObsNormalizer, Policy, one_torch_thread
-from labcli.training import TrainContext
-from labcli.wrappers import Stage, Step, WrapperSpec
-
-ADAPTER = WrapperSpec("rsl_rl.adapter", Stage.ADAPTER, RslRlVecEnv, framework="rsl_rl",
-                      description="torch VectorEnv → RSL-RL VecEnv (TensorDict), time-outs flagged")
+from lab_rsl_rl.config import RslRlPpoConfig
+from labcli.errors import LabError, first_line
+from labcli.plugins.framework import Framework, TrainContext
+from labcli.plugins.policy import ObsNormalizer, Policy, one_torch_thread
 
 # Checkpoints are RSL-RL's own dict (runner.save); lab adds what load_policy needs to rebuild the
 # actor without the run's config under this key of its "infos".
 INFO_KEY = "lab"
 INFO_KEYS = {"observation_size", "action_size", "actor"}
 MODEL, DISTRIBUTION = "MLPModel", "GaussianDistribution"  # the classes this plugin writes
-
-
-class RslRlPpoConfig(AgentConfig):
-    """RSL-RL's PPO and actor-critic settings, named as in Isaac Lab's RslRlPpoAlgorithmCfg."""
-
-    num_steps_per_env: int = Field(24, gt=0, description="steps per env per iteration")
-    actor_hidden_dims: list[int] = Field(default_factory=lambda: [64, 64])
-    critic_hidden_dims: list[int] = Field(default_factory=lambda: [64, 64])
-    activation: Literal["elu", "relu", "tanh", "selu", "lrelu", "gelu", "swish"] = "elu"
-    init_noise_std: float = Field(1.0, gt=0, description="initial std of the Gaussian actions")
-    empirical_normalization: bool = Field(
-        True, description="normalize observations by running mean and std (saved in checkpoints)")
-    learning_rate: float = Field(1e-3, gt=0)
-    schedule: Literal["adaptive", "fixed"] = "adaptive"
-    desired_kl: float | None = Field(0.01, gt=0, description="KL target of the adaptive lr")
-    num_learning_epochs: int = Field(5, gt=0)
-    num_mini_batches: int = Field(4, gt=0)
-    gamma: float = Field(0.99, gt=0, le=1)
-    lam: float = Field(0.95, gt=0, le=1)
-    clip_param: float = Field(0.2, gt=0)
-    entropy_coef: float = 0.005
-    value_loss_coef: float = 1.0
-    use_clipped_value_loss: bool = True
-    max_grad_norm: float = Field(1.0, gt=0)
 
 
 def runner_config(cfg: RslRlPpoConfig) -> dict[str, Any]:
@@ -155,21 +127,12 @@ class LabRunner(OnPolicyRunner):
             self.alg.load(saved, None, strict=True)  # actor, critic (normalizers too), optimizer
         except (RuntimeError, KeyError, ValueError) as exc:
             raise LabError(f"checkpoint {path.name} does not fit the agent config: "
-                           f"{_first_line(exc)}", "resume without changing the network") from exc
+                           f"{first_line(exc)}", "resume without changing the network") from exc
         self.current_learning_iteration = self.ctx.start_iteration
 
 
 class RslRlFramework(Framework):
-    name = "rsl_rl"
-    description = "RSL-RL PPO (torch end to end; empirical observation normalization)"
-    agent_config = RslRlPpoConfig
-
-    def wrappers(self) -> list[WrapperSpec]:
-        return [ADAPTER]
-
-    def pipeline(self, cfg: RslRlPpoConfig) -> list[Step]:
-        # Normalization lives in RSL-RL's models, so no framework-stage wrapper is needed.
-        return [Step(ADAPTER)]
+    # The default pipeline, the adapter alone: normalization lives in RSL-RL's models.
 
     def train(self, env: RslRlVecEnv, ctx: TrainContext) -> None:
         cfg: RslRlPpoConfig = ctx.cfg  # type: ignore[assignment]
@@ -206,7 +169,7 @@ class RslRlFramework(Framework):
             model.load_state_dict(saved["actor_state_dict"])
         except (KeyError, RuntimeError) as exc:
             raise LabError(f"checkpoint {checkpoint.name} holds no actor matching its own config:"
-                           f" {_first_line(exc)}", "the checkpoint is damaged; pick another"
+                           f" {first_line(exc)}", "the checkpoint is damaged; pick another"
                            ) from exc
         return Policy(_deterministic_actor(model), _normalizer(model)).eval()
 
@@ -245,14 +208,9 @@ def _read_checkpoint(path: Path, device: str) -> dict[str, Any]:
     try:
         saved = torch.load(path, map_location=device, weights_only=True)
     except (OSError, RuntimeError, EOFError, pickle.UnpicklingError) as exc:
-        raise LabError(f"checkpoint {path} is not a loadable RSL-RL model: {_first_line(exc)}",
+        raise LabError(f"checkpoint {path} is not a loadable RSL-RL model: {first_line(exc)}",
                        "pick another checkpoint with --checkpoint") from exc
     if not isinstance(saved, dict):
         raise LabError(f"checkpoint {path} is not a loadable RSL-RL model: it holds a "
                        f"{type(saved).__name__}", "pick another checkpoint with --checkpoint")
     return saved
-
-
-def _first_line(exc: BaseException) -> str:
-    text = str(exc).strip()
-    return text.splitlines()[0] if text else type(exc).__name__

@@ -1,17 +1,21 @@
-"""Registers RSL-RL through the same hooks a third-party framework plugin would use."""
+"""Registers RSL-RL through the same hook a third-party framework plugin would use. Its classes
+are named, not imported: rsl-rl-lib and torch load only when a command trains or plays."""
 
-from lab_rsl_rl.framework import RslRlFramework
-from labcli.hookspecs import hookimpl
+from lab_rsl_rl.config import RslRlPpoConfig
+from labcli.envs.wrappers import Stage, WrapperSpec
+from labcli.plugins.framework import FrameworkSpec
+from labcli.plugins.hookspecs import hookimpl
 
-FRAMEWORK = RslRlFramework()
+ADAPTER = WrapperSpec(
+    "rsl_rl.adapter", Stage.ADAPTER, "lab_rsl_rl.adapter:RslRlVecEnv", framework="rsl_rl",
+    description="torch VectorEnv → RSL-RL VecEnv (TensorDict), time-outs flagged")
+
+SPEC = FrameworkSpec(
+    name="rsl_rl", framework="lab_rsl_rl.framework:RslRlFramework", agent_config=RslRlPpoConfig,
+    wrappers=(ADAPTER,),
+    description="RSL-RL PPO (torch end to end; empirical observation normalization)")
 
 
 @hookimpl
 def register_frameworks(register):
-    register(FRAMEWORK)
-
-
-@hookimpl
-def register_wrappers(register):
-    for spec in FRAMEWORK.wrappers():
-        register(spec)
+    register(SPEC)

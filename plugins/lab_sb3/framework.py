@@ -7,48 +7,23 @@ import os
 import pickle
 import zipfile
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any
 
 import torch
-from pydantic import Field
 from stable_baselines3 import PPO
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.logger import configure
 from stable_baselines3.common.vec_env import VecNormalize
 from torch import nn
 
-from lab_sb3.adapter import Sb3VecEnv
+from lab_sb3.config import Sb3PPOConfig
+from lab_sb3.plugin import ADAPTER, VEC_NORMALIZE
+from labcli.envs.wrappers import Step
 from labcli.errors import LabError
-from labcli.framework import AgentConfig, Framework, ObsNormalizer, Policy, one_torch_thread
-from labcli.training import TrainContext
-from labcli.wrappers import Stage, Step, WrapperSpec
+from labcli.plugins.framework import Framework, TrainContext
+from labcli.plugins.policy import ObsNormalizer, Policy, one_torch_thread
 
 ACTIVATIONS = {"tanh": nn.Tanh, "relu": nn.ReLU, "elu": nn.ELU}
-
-ADAPTER = WrapperSpec("sb3.adapter", Stage.ADAPTER, Sb3VecEnv, framework="sb3",
-                      description="torch VectorEnv → SB3 VecEnv (numpy), time-outs flagged")
-VEC_NORMALIZE = WrapperSpec("sb3.vec_normalize", Stage.FRAMEWORK, VecNormalize, framework="sb3",
-                            description="SB3's running observation/reward normalization")
-
-
-class Sb3PPOConfig(AgentConfig):
-    n_steps: int = Field(32, gt=0, description="steps per env per iteration")
-    batch_size: int = Field(1024, gt=0)
-    n_epochs: int = Field(5, gt=0)
-    learning_rate: float = Field(3e-4, gt=0)
-    gamma: float = Field(0.99, gt=0, le=1)
-    gae_lambda: float = Field(0.95, gt=0, le=1)
-    clip_range: float = Field(0.2, gt=0)
-    ent_coef: float = 0.0
-    vf_coef: float = 0.5
-    max_grad_norm: float = 0.5
-    target_kl: float | None = None
-    net_arch: list[int] = Field(default_factory=lambda: [64, 64])
-    activation: Literal["tanh", "relu", "elu"] = "tanh"
-    log_std_init: float = 0.0
-    normalize_obs: bool = True
-    normalize_reward: bool = False
-    clip_obs: float = Field(10.0, gt=0)
 
 
 class _LabCallback(BaseCallback):
@@ -90,14 +65,6 @@ class _LabCallback(BaseCallback):
 
 
 class Sb3Framework(Framework):
-    name = "sb3"
-    description = "Stable-Baselines3 PPO (numpy VecEnv; VecNormalize optional)"
-    agent_config = Sb3PPOConfig
-    checkpoint_suffix = ".zip"
-
-    def wrappers(self) -> list[WrapperSpec]:
-        return [ADAPTER, VEC_NORMALIZE]
-
     def pipeline(self, cfg: Sb3PPOConfig) -> list[Step]:
         steps = [Step(ADAPTER)]
         if cfg.normalize_obs or cfg.normalize_reward:

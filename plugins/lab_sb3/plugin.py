@@ -1,17 +1,23 @@
-"""Registers SB3 through the same hooks a third-party framework plugin would use."""
+"""Registers SB3 through the same hook a third-party framework plugin would use. Its classes are
+named, not imported: stable-baselines3 and torch load only when a command trains or plays."""
 
-from lab_sb3.framework import Sb3Framework
-from labcli.hookspecs import hookimpl
+from lab_sb3.config import Sb3PPOConfig
+from labcli.envs.wrappers import Stage, WrapperSpec
+from labcli.plugins.framework import FrameworkSpec
+from labcli.plugins.hookspecs import hookimpl
 
-FRAMEWORK = Sb3Framework()
+ADAPTER = WrapperSpec("sb3.adapter", Stage.ADAPTER, "lab_sb3.adapter:Sb3VecEnv", framework="sb3",
+                      description="torch VectorEnv → SB3 VecEnv (numpy), time-outs flagged")
+VEC_NORMALIZE = WrapperSpec(
+    "sb3.vec_normalize", Stage.FRAMEWORK, "stable_baselines3.common.vec_env:VecNormalize",
+    framework="sb3", description="SB3's running observation/reward normalization")
+
+SPEC = FrameworkSpec(
+    name="sb3", framework="lab_sb3.framework:Sb3Framework", agent_config=Sb3PPOConfig,
+    wrappers=(ADAPTER, VEC_NORMALIZE), checkpoint_suffix=".zip",
+    description="Stable-Baselines3 PPO (numpy VecEnv; VecNormalize optional)")
 
 
 @hookimpl
 def register_frameworks(register):
-    register(FRAMEWORK)
-
-
-@hookimpl
-def register_wrappers(register):
-    for spec in FRAMEWORK.wrappers():
-        register(spec)
+    register(SPEC)

@@ -10,11 +10,10 @@ from __future__ import annotations
 
 import pickle
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any
 
 import gymnasium as gym
 import torch
-from pydantic import Field, PositiveInt
 from skrl.agents.torch import ExperimentCfg
 from skrl.agents.torch.ppo import PPO, PPO_CFG
 from skrl.memories.torch import RandomMemory
@@ -24,42 +23,16 @@ from skrl.resources.schedulers.torch import KLAdaptiveLR
 from torch import nn
 
 from lab_skrl.adapter import SkrlEnv
-from labcli.errors import LabError
-from labcli.framework import AgentConfig, Framework, ObsNormalizer, Policy, one_torch_thread
-from labcli.training import TrainContext
-from labcli.wrappers import Stage, Step, WrapperSpec
+from lab_skrl.config import SkrlPPOConfig
+from labcli.errors import LabError, first_line
+from labcli.plugins.framework import Framework, TrainContext
+from labcli.plugins.policy import ObsNormalizer, Policy, one_torch_thread
 
 ACTIVATIONS = {"tanh": nn.Tanh, "relu": nn.ReLU, "elu": nn.ELU}
 META = "lab"  # checkpoint entry with what lab needs besides skrl's modules
 META_KEYS = {"observation_size", "action_size", "hidden_sizes", "activation", "obs_clip",
              "obs_epsilon", "steps"}
 OBS_EPSILON = 1e-8  # RunningStandardScaler's default, stored so the frozen copy matches
-
-ADAPTER = WrapperSpec("skrl.adapter", Stage.ADAPTER, SkrlEnv, framework="skrl",
-                      description="torch VectorEnv → skrl env wrapper (torch), time-outs flagged")
-
-
-class SkrlPPOConfig(AgentConfig):
-    rollouts: int = Field(16, gt=0, description="steps per env per iteration")
-    learning_epochs: int = Field(8, gt=0)
-    mini_batches: int = Field(8, gt=0)
-    discount_factor: float = Field(0.99, gt=0, le=1)
-    gae_lambda: float = Field(0.95, gt=0, le=1)
-    learning_rate: float = Field(1e-3, gt=0)
-    kl_adaptive_lr: bool = Field(True, description="adapt the learning rate to desired_kl")
-    desired_kl: float = Field(0.008, gt=0, description="KL target of the adaptive learning rate")
-    ratio_clip: float = Field(0.2, gt=0)
-    value_clip: float = Field(0.2, ge=0, description="0 turns value clipping off")
-    entropy_loss_scale: float = 0.0
-    value_loss_scale: float = Field(2.0, gt=0)
-    grad_norm_clip: float = Field(1.0, ge=0, description="0 turns gradient clipping off")
-    reward_scale: float = Field(1.0, gt=0, description="rewards are multiplied by this")
-    hidden_sizes: list[PositiveInt] = Field(default_factory=lambda: [32, 32])
-    activation: Literal["tanh", "relu", "elu"] = "elu"
-    init_log_std: float = 0.0
-    normalize_obs: bool = True
-    normalize_value: bool = True
-    clip_obs: float = Field(5.0, gt=0, description="normalized observations are clipped to ±this")
 
 
 def mlp(n_in: int, hidden: list[int], n_out: int, activation: str) -> nn.Sequential:
@@ -148,16 +121,6 @@ def make_agent(cfg: SkrlPPOConfig, env: SkrlEnv, device: str, run_dir: Path) -> 
 
 
 class SkrlFramework(Framework):
-    name = "skrl"
-    description = "skrl PPO (torch end to end; running observation normalizer)"
-    agent_config = SkrlPPOConfig
-
-    def wrappers(self) -> list[WrapperSpec]:
-        return [ADAPTER]
-
-    def pipeline(self, cfg: SkrlPPOConfig) -> list[Step]:
-        return [Step(ADAPTER)]
-
     def train(self, env: SkrlEnv, ctx: TrainContext) -> None:
         cfg: SkrlPPOConfig = ctx.cfg  # type: ignore[assignment]
         agent = make_agent(cfg, env, ctx.device, ctx.run_dir)
@@ -202,7 +165,7 @@ class SkrlFramework(Framework):
             actor.load_state_dict(saved["policy"])
         except (KeyError, RuntimeError) as exc:
             raise LabError(f"checkpoint {checkpoint.name} has no policy matching its own "
-                           f"description: {_one_line(exc)}", "pick another checkpoint") from exc
+                           f"description: {first_line(exc)}", "pick another checkpoint") from exc
         normalizer = None
         scaler = saved.get("observation_preprocessor")
         if scaler is not None:
@@ -258,7 +221,7 @@ def read_checkpoint(path: Path) -> dict[str, Any]:
     try:
         saved = torch.load(path, map_location="cpu", weights_only=True)
     except (OSError, RuntimeError, EOFError, pickle.UnpicklingError, ValueError) as exc:
-        raise LabError(f"checkpoint {path} is not a loadable torch file: {_one_line(exc)}",
+        raise LabError(f"checkpoint {path} is not a loadable torch file: {first_line(exc)}",
                        "pick another checkpoint with --checkpoint") from exc
     meta = saved.get(META) if isinstance(saved, dict) else None
     if not isinstance(meta, dict) or not set(meta) >= META_KEYS or "policy" not in saved:
@@ -277,7 +240,7 @@ def load_agent(agent: PPO, saved: dict[str, Any], path: Path) -> None:
             module.load_state_dict(saved[name])
         except (RuntimeError, ValueError, KeyError) as exc:
             raise LabError(f"checkpoint {path.name}: '{name}' does not fit this agent: "
-                           f"{_one_line(exc)}", "resume with the settings it was trained with"
+                           f"{first_line(exc)}", "resume with the settings it was trained with"
                            ) from exc
 
 
@@ -294,8 +257,3 @@ def _check_sizes(checkpoint: Path, meta: dict[str, Any], env: Any) -> None:
 
 def _size(space: gym.Space) -> int:
     return int(gym.spaces.flatdim(space))
-
-
-def _one_line(exc: BaseException) -> str:
-    lines = str(exc).strip().splitlines()
-    return lines[0] if lines else type(exc).__name__

@@ -1,17 +1,20 @@
-"""Registers skrl through the same hooks a third-party framework plugin would use."""
+"""Registers skrl through the same hook a third-party framework plugin would use. Its classes are
+named, not imported: skrl and torch load only when a command trains or plays."""
 
-from lab_skrl.framework import SkrlFramework
-from labcli.hookspecs import hookimpl
+from lab_skrl.config import SkrlPPOConfig
+from labcli.envs.wrappers import Stage, WrapperSpec
+from labcli.plugins.framework import FrameworkSpec
+from labcli.plugins.hookspecs import hookimpl
 
-FRAMEWORK = SkrlFramework()
+ADAPTER = WrapperSpec("skrl.adapter", Stage.ADAPTER, "lab_skrl.adapter:SkrlEnv", framework="skrl",
+                      description="torch VectorEnv → skrl env wrapper (torch), time-outs flagged")
+
+SPEC = FrameworkSpec(
+    name="skrl", framework="lab_skrl.framework:SkrlFramework", agent_config=SkrlPPOConfig,
+    wrappers=(ADAPTER,),
+    description="skrl PPO (torch end to end; running observation normalizer)")
 
 
 @hookimpl
 def register_frameworks(register):
-    register(FRAMEWORK)
-
-
-@hookimpl
-def register_wrappers(register):
-    for spec in FRAMEWORK.wrappers():
-        register(spec)
+    register(SPEC)

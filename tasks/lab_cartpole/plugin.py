@@ -1,15 +1,16 @@
-"""Registers the built-in tasks through the same hook a third-party package would use."""
+"""Registers the built-in tasks through the same hook a third-party package would use. The task's
+code is named, not imported: torch loads only when an env is built."""
 
-from lab_cartpole.cartpole import MODEL, Cartpole, CartpoleConfig
-from labcli.hookspecs import hookimpl
-from labcli.task import TaskSpec
+from lab_cartpole.config import MODEL, CartpoleConfig
+from labcli.envs.spec import TaskSpec
+from labcli.plugins.hookspecs import hookimpl
 
 
 @hookimpl
 def register_tasks(register):
     register(TaskSpec(
         name="cartpole",
-        task=Cartpole,
+        task="lab_cartpole.cartpole:Cartpole",
         config=CartpoleConfig,
         model=MODEL,
         description="push a cart to swing its pole upright from up to ±45° and balance it",

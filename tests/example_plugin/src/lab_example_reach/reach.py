@@ -3,15 +3,12 @@ torch over `[num_envs, ...]`, so that it runs unchanged on the cpu and warp back
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import torch
 from pydantic import Field
 
-from labcli.sim import Sim
-from labcli.task import Task, TaskConfig
-
-MODEL = Path(__file__).with_name("reach.xml")
+from labcli.envs.sim import Sim
+from labcli.envs.spec import TaskConfig
+from labcli.envs.task import Task
 
 
 class ReachConfig(TaskConfig):

@@ -1,0 +1,66 @@
+"""The `lab` command: a thin layer that parses, calls one library function and prints. Each
+command lives in its own module; here they are put together, and a LabError raised anywhere
+becomes one line on stderr and its exit code."""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Callable
+from typing import Annotated, Any
+
+import typer
+from rich.text import Text
+
+from labcli import __version__
+from labcli.commands import bench, config, export, info, listing, play, plot, runs, train
+from labcli.commands.common import err, out
+from labcli.errors import LabError
+
+SUMMARY = "Train, play and export RL policies for MuJoCo robots with SB3, RSL-RL or skrl."
+
+app = typer.Typer(help=f"{SUMMARY}\n\nExample: lab train --task cartpole --framework sb3",
+                  no_args_is_help=True, add_completion=True, pretty_exceptions_enable=False)
+config_app = typer.Typer(
+    help="Look at resolved configs.\n\nExample: lab config show --task cartpole --framework sb3",
+    no_args_is_help=True)
+app.add_typer(config_app, name="config")
+
+
+def one_line_errors(fn: Callable) -> Callable:
+    """A LabError becomes one line on stderr and the error's exit code (2 for bad input)."""
+
+    @functools.wraps(fn)
+    def run(*args: Any, **kwargs: Any) -> Any:
+        try:
+            return fn(*args, **kwargs)
+        except LabError as exc:
+            err.print(Text.assemble(("error:", "bold red"), f" {exc}"), highlight=False,
+                      soft_wrap=True)
+            raise typer.Exit(exc.exit_code) from None
+
+    return run
+
+
+for name, command in (("list", listing.list_), ("train", train.train), ("play", play.play),
+                      ("export", export.export), ("bench", bench.bench), ("runs", runs.runs),
+                      ("plot", plot.plot), ("info", info.info)):
+    app.command(name)(one_line_errors(command))
+config_app.command("show")(one_line_errors(config.show))
+
+
+def _version(value: bool) -> None:
+    if value:
+        out.print(f"lab {__version__}")
+        raise typer.Exit()
+
+
+@app.callback()
+def main_callback(
+    version: Annotated[bool, typer.Option("--version", callback=_version, is_eager=True,
+                                          help="Print the version and exit.")] = False,
+) -> None:
+    """Train, play and export RL policies for MuJoCo robots with SB3, RSL-RL or skrl."""
+
+
+def main() -> None:
+    app()

@@ -1,0 +1,57 @@
+"""`lab bench`."""
+
+from __future__ import annotations
+
+import json
+from typing import Annotated
+
+import typer
+
+from labcli.commands.common import JsonOpt, TaskArg, complete_framework, out, table
+from labcli.errors import LabError
+
+
+def bench(
+    task: TaskArg,
+    num_envs: Annotated[str, typer.Option(help="Comma-separated env counts.")] = "16,256,1024",
+    backend: Annotated[str | None, typer.Option(
+        help="Simulation backend: cpu or warp [warp where CUDA is available].")] = None,
+    device: Annotated[str | None, typer.Option(
+        help="Torch device of the env [cuda with the warp backend, else cpu].")] = None,
+    framework: Annotated[str | None, typer.Option(
+        "--framework", "-f", help="Also time a short training run with this framework.",
+        autocompletion=complete_framework)] = None,
+    seconds: Annotated[float, typer.Option(help="Seconds per measurement.")] = 3.0,
+    threads: Annotated[int | None, typer.Option(
+        help="cpu backend: threads that step the physics [the cores this process may use].")
+    ] = None,
+    as_json: JsonOpt = False,
+) -> None:
+    """Measure env-steps/s of a task (random actions, resets included) and, with --framework,
+    training steps/s.
+
+    Example: lab bench --task cartpole --num-envs 16,256,1024 --framework rsl_rl
+    """
+    try:
+        counts = [int(n) for n in num_envs.split(",")]
+    except ValueError:
+        raise LabError(f"--num-envs '{num_envs}' is not a list of integers",
+                       "e.g. --num-envs 16,256,1024") from None
+    from labcli.runs import bench as benches
+
+    rows = benches.bench(task, counts, backend=backend, device=device, framework=framework,
+                         seconds=seconds, threads=threads)
+    if as_json:
+        out.print_json(json.dumps([row.as_dict() for row in rows]))
+        return
+    columns = ["task", "backend", "threads", "envs", "env-steps/s"]
+    if framework:
+        columns += ["framework", "training steps/s"]
+    rows_table = table(*columns, title="lab bench")
+    for row in rows:
+        cells = [row.task, row.backend, str(row.threads or "-"), str(row.num_envs),
+                 f"{row.env_steps_per_s:,.0f}"]
+        if framework:
+            cells += [row.framework, f"{row.train_steps_per_s:,.0f}"]
+        rows_table.add_row(*cells)
+    out.print(rows_table)

@@ -1,0 +1,23 @@
+"""`lab config show`."""
+
+from __future__ import annotations
+
+from labcli.commands.common import ConfigOpt, FrameworkArg, SetOpt, TaskArg, out
+from labcli.plugins import registry
+from labcli.runs import config
+
+
+def show(
+    task: TaskArg,
+    framework: FrameworkArg,
+    set_: SetOpt = None,
+    config_file: ConfigOpt = None,
+) -> None:
+    """Print the fully resolved env and agent config as YAML, fit for `lab train --config`.
+
+    Example: lab config show --task cartpole --framework sb3 --set agent.n_epochs=10 > my.yaml
+    """
+    env_cfg, agent_cfg = config.resolve(
+        registry.get_task(task), registry.get_framework(framework), config_file=config_file,
+        overrides=set_ or [])
+    out.print(config.dump(env_cfg, agent_cfg), end="", highlight=False, soft_wrap=True)

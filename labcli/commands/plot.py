@@ -1,0 +1,34 @@
+"""`lab plot`."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from labcli.commands.common import FrameworkOpt, LogsDir, TaskOpt, err, say
+from labcli.runs import plot as plots
+
+
+def plot(
+    run_dirs: Annotated[list[Path] | None, typer.Argument(
+        help="Run directories [the newest run, or --last N]", show_default=False)] = None,
+    metric: Annotated[str, typer.Option(help="TensorBoard tag to plot.")] = plots.DEFAULT_METRIC,
+    output: Annotated[Path, typer.Option("--output", "-o", help="PNG file to write.")] =
+        plots.DEFAULT_OUTPUT,
+    last: Annotated[int, typer.Option(help="Without RUN: the N newest runs.")] = 1,
+    task: TaskOpt = None,
+    framework: FrameworkOpt = None,
+    logs_dir: LogsDir = None,
+) -> None:
+    """Draw learning curves (a metric against env steps) of one or more runs into a PNG.
+
+    Example: lab plot --task cartpole --last 3 -o cartpole.png
+    """
+    selected = plots.select(run_dirs or [], logs_dir=logs_dir, last=last, task=task,
+                            framework=framework)
+    result = plots.plot(selected, metric, output)
+    for run in result.skipped:
+        err.print(f"note: {run.dir} has no '{metric}' yet; left out", highlight=False)
+    say(f"wrote {result.path}: {metric} of {len(result.plotted)} run(s)")

@@ -1,0 +1,42 @@
+"""`lab runs`."""
+
+from __future__ import annotations
+
+import json
+from typing import Annotated
+
+import typer
+from rich.table import Column
+
+from labcli.commands.common import FrameworkOpt, JsonOpt, LogsDir, TaskOpt, figure, out, table
+from labcli.runs import rundir
+
+
+def runs(
+    task: TaskOpt = None,
+    framework: FrameworkOpt = None,
+    state: Annotated[str | None, typer.Option(
+        help="Filter by state: finished, interrupted, failed or running.")] = None,
+    as_json: JsonOpt = False,
+    logs_dir: LogsDir = None,
+) -> None:
+    """List runs, newest first: task, framework, start, steps, wall time, final mean return,
+    success rate and state ("failed": it stopped on an error or died without a summary).
+
+    Example: lab runs --task cartpole --state finished
+    """
+    logs_dir = logs_dir or rundir.default_logs_dir()
+    rows = rundir.table(logs_dir, task, framework, state)
+    if as_json:
+        out.print_json(json.dumps([row.as_dict() for row in rows]))
+        return
+    shown = table(Column("started", no_wrap=True), "task", "framework", "name", "steps",
+                  "wall time", "return", "success", Column("state", no_wrap=True),
+                  title=f"{len(rows)} runs in {logs_dir}")
+    for row in rows:
+        shown.add_row(
+            row.started.replace("T", " ")[:16], row.task, row.framework,
+            rundir.run_name(row.dir), figure(row.steps, "{:,}"),
+            figure(row.wall_time_s, "{:.1f} s"), figure(row.mean_return, "{:.1f}"),
+            figure(row.success_rate, "{:.0%}"), row.state)
+    out.print(shown)

@@ -1,0 +1,69 @@
+"""`lab train`."""
+
+from __future__ import annotations
+
+import signal
+from typing import Annotated
+
+import typer
+
+from labcli.commands.common import (
+    ConfigOpt,
+    FrameworkArg,
+    LogsDir,
+    SetOpt,
+    TaskArg,
+    VideoLengthOpt,
+    err,
+    say,
+)
+from labcli.runs import training
+from labcli.runs import video as videos
+
+
+def train(
+    task: TaskArg,
+    framework: FrameworkArg,
+    num_envs: Annotated[int | None, typer.Option(help="Parallel envs [task default].")] = None,
+    seed: Annotated[int | None, typer.Option(
+        help="Seeds the env, torch, NumPy and the framework [0; a resumed run keeps its own].")
+    ] = None,
+    max_iterations: Annotated[int | None, typer.Option(
+        help="Rollout + update cycles [framework default].")] = None,
+    device: Annotated[str | None, typer.Option(
+        help="Torch device of the env and learner [cuda with the warp backend, else cpu].")] = None,
+    backend: Annotated[str | None, typer.Option(
+        help="Simulation backend: cpu, or warp (GPU) [warp where CUDA is available].")] = None,
+    run_name: Annotated[str | None, typer.Option(help="Suffix of the run directory.")] = None,
+    set_: SetOpt = None,
+    config_file: ConfigOpt = None,
+    checkpoint: Annotated[str | None, typer.Option(
+        help="Resume from a checkpoint file, a run dir, or 'latest'.")] = None,
+    video: Annotated[bool, typer.Option("--video", help="Record env 0 as mp4.")] = False,
+    video_length: VideoLengthOpt = 200,
+    video_interval: Annotated[int, typer.Option(
+        help="Env steps from one video's start to the next.")] = 2000,
+    logs_dir: LogsDir = None,
+) -> None:
+    """Train a policy; the run goes to logs/<framework>/<task>/<time>/.
+
+    Example: lab train --task cartpole --framework sb3 --set agent.learning_rate=1e-3 --video
+    """
+    settings = videos.VideoSettings(video_length, video_interval) if video else None
+    outcome = training.train(
+        task, framework, num_envs=num_envs, seed=seed, max_iterations=max_iterations,
+        device=device, backend=backend, run_name=run_name, overrides=set_ or [],
+        config_file=config_file, checkpoint=checkpoint, logs_dir=logs_dir, console=err,
+        video=settings)
+    s = outcome.summary
+    figures = [f"{s['state']}", f"{s['iterations']} iterations", f"{s['steps']:,} steps",
+               f"{s['wall_time_s']:.1f} s"]
+    if s["mean_return"] is not None:
+        figures.append(f"mean return {s['mean_return']:.1f}")
+    if s["success_rate"] is not None:
+        figures.append(f"success {s['success_rate']:.0%}")
+    say(f"{outcome.run.dir}: " + ", ".join(figures))
+    if settings is not None:
+        say(f"videos: {videos.folder(outcome.run.dir, videos.TRAIN)}")
+    if s["state"] == "interrupted":
+        raise typer.Exit(128 + int(s.get("signal", signal.SIGINT)))

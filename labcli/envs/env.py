@@ -1,0 +1,275 @@
+"""The batched environment: a gymnasium VectorEnv of torch tensors `[num_envs, ...]`."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import gymnasium as gym
+import mujoco
+import numpy as np
+import torch
+from gymnasium.vector import AutoresetMode
+from gymnasium.vector.utils import batch_space
+
+from labcli.envs import metrics
+from labcli.envs.cuda_graph import GraphedStep
+from labcli.envs.render.scene import SceneRenderer
+from labcli.envs.sim import default_backend, make_sim
+from labcli.envs.spec import TaskConfig, TaskSpec
+from labcli.errors import LabError
+
+UNSTABLE = "unstable"
+
+
+class LabVecEnv(gym.vector.VectorEnv):
+    """Steps all envs at once; ended envs reset in the same step (`info["final_obs"]` keeps
+    their last observation). Episode statistics accumulate on the device and are read once per
+    training iteration with `pop_stats()`, so stepping never waits on the host."""
+
+    metadata = {"autoreset_mode": AutoresetMode.SAME_STEP}
+    render_mode = "rgb_array"  # env 0, see `render`
+
+    def __init__(self, spec: TaskSpec, cfg: TaskConfig, *, backend: str | None = None,
+                 device: str = "cpu", seed: int = 0):
+        self.task_spec = spec
+        self.cfg = cfg
+        model = mujoco.MjModel.from_xml_path(str(spec.model))
+        if cfg.sim_dt is not None:
+            model.opt.timestep = cfg.sim_dt
+        self.step_dt = model.opt.timestep * cfg.decimation
+        steps = cfg.episode_length_s / self.step_dt
+        if not steps < 2**31:
+            raise LabError(f"an episode of {cfg.episode_length_s:g} s is {steps:.3g} env steps of "
+                           f"{self.step_dt:g} s", "shorten episode_length_s or raise sim_dt")
+        # Rounded first: 0.14 / 0.02 is 7.000000000000001, which must be 7 steps, not 8.
+        self.max_episode_length = math.ceil(round(steps, 9))
+        self.backend = backend or default_backend(device)
+        self.sim = make_sim(self.backend, model, cfg.num_envs, device, cfg.threads)
+        self.task = spec.task_class(cfg, self.sim)
+        self.num_envs = cfg.num_envs
+        self.device = self.sim.device
+
+        self.observation_names = list(self.task.observation_names)
+        self.action_names = list(self.task.action_names)
+        self.single_observation_space = gym.spaces.Box(
+            -np.inf, np.inf, (len(self.observation_names),), np.float32)
+        self.single_action_space = gym.spaces.Box(-1.0, 1.0, (len(self.action_names),), np.float32)
+        self.observation_space = batch_space(self.single_observation_space, self.num_envs)
+        self.action_space = batch_space(self.single_action_space, self.num_envs)
+
+        self.reward_names = list(cfg.reward_weights)
+        term_names = set(self.task.reward_terms())
+        if term_names != set(self.reward_names):
+            raise LabError(
+                f"task '{spec.name}' computes reward terms {sorted(term_names)} but its config "
+                f"weighs {sorted(self.reward_names)}",
+                "give reward_weights exactly one entry per reward term")
+        weights = torch.tensor([cfg.reward_weights[k] for k in self.reward_names],
+                               device=self.device)
+        self.termination_names = [*self.task.terminations(), UNSTABLE]
+        self.generator = torch.Generator(self.device)
+        self.generator.manual_seed(seed)
+
+        n, dev = self.num_envs, self.device
+        k, t = len(self.reward_names), len(self.termination_names)
+        self.episode_length = torch.zeros(n, dtype=torch.long, device=dev)
+        # Per-env figures are kept as rows over the envs (`[figure, num_envs]`) or tiled to the
+        # full shape: an op that broadcasts over a short last dimension steps through the envs
+        # one at a time, at 1024 envs several times the cost of one flat loop.
+        # The return and the per-term sums, a row each: one op clears or copies them all.
+        sums = self._episode_sums = torch.zeros(1 + k, n, device=dev)
+        self.episode_return, self.episode_terms = sums[0], sums[1:].t()
+        self._weights = weights.expand(n, k).contiguous()
+        self._weighted = torch.empty(n, k, device=dev)
+        # One row per figure that `pop_stats` reports, one column per env (see `_accumulate`),
+        # and where each figure goes in it: views made once, each shaped like its figure.
+        self._ended = torch.empty(5 + k + t, n, dtype=torch.float64, device=dev)
+        e = self._ended
+        self._ended_figures = (e[0], e[1:2 + k], e[2 + k], e[3 + k], e[4 + k:-1], e[-1])
+        self._stats = torch.zeros(len(e), dtype=torch.float64, device=dev)
+        self._all = torch.ones(n, dtype=torch.bool, device=dev)
+        self._renderer: SceneRenderer | None = None
+        self._resume_state: dict[str, torch.Tensor] | None = None
+        # On a GPU the step is host-bound when eager: it replays as one CUDA graph instead.
+        self._graphed = (GraphedStep(self._step, [self.generator], f"the env step of task "
+                                     f"'{spec.name}'")
+                         if self.device.type == "cuda" and cfg.cuda_graph else None)
+
+    # gymnasium API ---------------------------------------------------------------------------
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
+        if seed is not None:
+            self.generator.manual_seed(seed)
+        mask = (options or {}).get("reset_mask")
+        if mask is None and self._resume_state is not None:
+            self.set_state(self._resume_state)
+            self._resume_state = None
+            self._stats.zero_()
+        elif mask is None:
+            self._reset_envs(self._all)
+            self._stats.zero_()
+        else:  # gymnasium's way to reset some envs only
+            self._reset_envs(torch.as_tensor(mask, dtype=torch.bool, device=self.device))
+        return self.observations(), {}
+
+    def step(self, actions: torch.Tensor):
+        actions = torch.as_tensor(actions, device=self.device, dtype=torch.float32)
+        if actions.shape != self.action_space.shape:
+            raise LabError(f"actions of shape {tuple(actions.shape)} for an env of "
+                           f"{self.num_envs} envs with {len(self.action_names)} actions each",
+                           f"pass a [{self.num_envs}, {len(self.action_names)}] tensor")
+        if self._graphed is not None:
+            return self._graphed(actions)
+        return self._step(actions)
+
+    def close(self, **kwargs: Any) -> None:
+        if self._graphed is not None:
+            self._graphed.close()
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
+        self.sim.close()
+
+    def _step(self, actions: torch.Tensor):
+        """The MDP of one env step, as torch operations only (no host syncs, fixed shapes), so
+        that on a GPU it replays as a CUDA graph."""
+        safe = actions.nan_to_num(0.0)
+        # nan_to_num changed exactly the non-finite entries (NaN equals nothing, inf != max).
+        bad_action = safe.ne(actions).any(dim=1)
+        self.task.apply_actions(safe.clamp_(-1.0, 1.0))
+        self.sim.step(self.cfg.decimation)
+        self.task.update()
+        self.episode_length += 1
+
+        causes = self.task.terminations()
+        unstable = self.sim.unstable() | bad_action
+        # A row per cause ([cause, env]): rows stack and reduce faster than short columns.
+        terminated = torch.stack([*causes.values(), unstable])
+        reward = self._reward(unstable)
+
+        terminated_any = terminated.any(dim=0)
+        done = terminated_any | (self.episode_length >= self.max_episode_length)
+        truncated = done ^ terminated_any  # timed out and not terminated
+        final_obs = self.observations()
+        success = self.task.success(truncated) & truncated
+        episode = {"r": self.episode_return.clone(), "l": self.episode_length.clone(),
+                   "success": success}
+        self._accumulate(done, success, terminated, bad_action)
+
+        self._reset_envs(done)
+        obs = self.observations()
+        info = {"final_obs": final_obs, "_final_obs": done, "episode": episode, "_episode": done,
+                "terminations": terminated.t()}
+        return obs, reward, terminated_any, truncated, info
+
+    # looking at env 0 ------------------------------------------------------------------------
+    def render(self) -> np.ndarray:
+        """Env 0 as an RGB image `[height, width, 3]`, rendered offscreen."""
+        return self._scene().render(self.sim.qpos[0], self.sim.qvel[0])
+
+    def mj_scene(self) -> tuple[mujoco.MjModel, mujoco.MjData]:
+        """The model and an MjData holding env 0's current state, for MuJoCo's viewer."""
+        renderer = self._scene()
+        return renderer.model, renderer.sync(self.sim.qpos[0], self.sim.qvel[0])
+
+    def _scene(self) -> SceneRenderer:
+        if self._renderer is None:
+            self._renderer = SceneRenderer(self.sim.model)
+        return self._renderer
+
+    def action_scaling(self) -> dict[str, Any]:
+        """How a policy action in [-1, 1] becomes a control, for exported metadata."""
+        return {"action_scale": self.cfg.action_scale}
+
+    # resume ----------------------------------------------------------------------------------
+    def get_state(self) -> dict[str, torch.Tensor]:
+        """What continues every episode exactly where it is: the sim's positions, velocities and
+        controls (what tasks read and write), episode counters and the reset generator."""
+        return {
+            "qpos": self.sim.qpos.clone(), "qvel": self.sim.qvel.clone(),
+            "ctrl": self.sim.ctrl.clone(), "episode_length": self.episode_length.clone(),
+            "episode_return": self.episode_return.clone(),
+            "episode_terms": self.episode_terms.clone(), "generator": self.generator.get_state(),
+        }
+
+    def set_state(self, state: dict[str, torch.Tensor]) -> None:
+        targets = {"qpos": self.sim.qpos, "qvel": self.sim.qvel, "ctrl": self.sim.ctrl,
+                   "episode_length": self.episode_length, "episode_return": self.episode_return,
+                   "episode_terms": self.episode_terms}
+        for name, target in targets.items():  # all checked before any is changed
+            if tuple(state[name].shape) != tuple(target.shape):
+                raise LabError(f"saved env state '{name}' has shape {tuple(state[name].shape)}, "
+                               f"this env {tuple(target.shape)}",
+                               "resume with the num_envs and task the checkpoint was trained with")
+        for name, target in targets.items():
+            target.copy_(state[name])
+        self.generator.set_state(state["generator"])
+        self.task.update()
+
+    def resume_from(self, state: dict[str, torch.Tensor]) -> None:
+        """Make the next full `reset()` continue the saved episodes instead of starting new ones:
+        every library resets its env once before training, and a resumed run must go on from
+        where the checkpoint left off, as if it had never stopped."""
+        self._resume_state = state
+
+    # statistics ------------------------------------------------------------------------------
+    def _accumulate(self, done: torch.Tensor, success: torch.Tensor, terminated: torch.Tensor,
+                    bad_action: torch.Tensor) -> None:
+        """Add the ended episodes' figures to the running sums: each figure is copied into its
+        rows of one float64 matrix (no stack or cat of mixed dtypes), which are summed over the
+        envs weighted by `done` in one matrix-vector product, not an op per figure. A non-finite
+        action always ends its episode, so `done` weights count those too."""
+        figures = (done, self._episode_sums, self.episode_length, success, terminated, bad_action)
+        for rows, figure in zip(self._ended_figures, figures, strict=True):
+            rows.copy_(figure)
+        self._stats.addmv_(self._ended, self._ended_figures[0])
+
+    def pop_stats(self) -> dict[str, float]:
+        """Means over the episodes that ended since the last call, under `metrics` tags; empty
+        when none ended. One host sync: call it once per training iteration, not per step."""
+        values = self._stats.tolist()
+        self._stats.zero_()
+        count = values[0]
+        if count == 0:
+            return {}
+        k = len(self.reward_names)
+        stats = {
+            metrics.EPISODES: count,
+            metrics.MEAN_RETURN: values[1] / count,
+            metrics.MEAN_LENGTH: values[2 + k] / count,
+            metrics.SUCCESS_RATE: values[3 + k] / count,
+        }
+        for name, total in zip(self.reward_names, values[2:2 + k], strict=True):
+            stats[metrics.REWARD_TERM + name] = total / count
+        terminations = values[4 + k:-1]
+        for name, total in zip(self.termination_names, terminations, strict=True):
+            stats[metrics.TERMINATION + name] = total / count
+        stats[metrics.INSTABILITIES] = terminations[-1]
+        stats[metrics.NONFINITE_ACTIONS] = values[-1]
+        return stats
+
+    # internals -------------------------------------------------------------------------------
+    def _reset_envs(self, mask: torch.Tensor) -> None:
+        self.sim.reset_to_defaults(mask)
+        self.task.reset(mask, self.generator)
+        self.task.update()
+        self.episode_length.masked_fill_(mask, 0)
+        self._episode_sums.masked_fill_(mask, 0.0)
+
+    def _reward(self, unstable: torch.Tensor) -> torch.Tensor:
+        """The weighted terms' sum; each weighted term also adds to its episode's total."""
+        terms = self.task.reward_terms()
+        rows = torch.stack([terms[name] for name in self.reward_names])  # contiguous copies
+        # A diverged env's state is garbage: it earns nothing on its last step.
+        rows.masked_fill_(unstable, 0.0)
+        # Cast and transposed in one copy: half the cost of stacking columns of another dtype.
+        weighted = self._weighted.copy_(rows.t())
+        weighted.mul_(self._weights).nan_to_num_(0.0, 0.0, 0.0)
+        reward = weighted.sum(dim=1)
+        self.episode_return += reward
+        self.episode_terms += weighted
+        return reward
+
+    def observations(self) -> torch.Tensor:
+        """The current observations: what the last step or reset returned."""
+        return self.task.observations().to(torch.float32).nan_to_num(0.0, 0.0, 0.0)

@@ -1,0 +1,26 @@
+"""Building the env of any task: lab's own batched env for a `TaskSpec`, gymnasium's vector env
+behind lab's interface for `gym:<id>`."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from labcli.envs.gym_spec import BACKEND, GymTaskSpec
+from labcli.envs.spec import TaskSpec
+from labcli.errors import LabError
+
+
+def make_env(spec: TaskSpec | GymTaskSpec, cfg: Any, *, backend: str | None = None,
+             device: str = "cpu", seed: int = 0) -> Any:
+    """The batched env of `spec` under the validated config `cfg` (`spec.config_class`)."""
+    if isinstance(spec, GymTaskSpec):
+        # gymnasium's MuJoCo envs step MuJoCo's C engine: "cpu" is what they are, "warp" not.
+        if backend not in (None, "cpu", BACKEND):
+            raise LabError(f"gymnasium tasks step in gymnasium on the CPU, not on the "
+                           f"'{backend}' backend", "leave --backend out for gym: tasks")
+        from labcli.envs.gym_bridge import GymVecEnv
+
+        return GymVecEnv(spec, cfg, device=device, seed=seed)
+    from labcli.envs.env import LabVecEnv
+
+    return LabVecEnv(spec, cfg, backend=backend, device=device, seed=seed)

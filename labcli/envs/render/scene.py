@@ -1,0 +1,64 @@
+"""Offscreen images of one MuJoCo state, for videos; the GL backend is gl.py's choice."""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+import torch
+
+from labcli.envs.render import gl
+from labcli.errors import LabError, first_line
+
+WIDTH, HEIGHT = 320, 240
+
+
+class SceneRenderer:
+    """Renders the state of one env of a batch through the model's first camera, or MuJoCo's
+    free camera where the model has none. The GL context is made on the first `render`, so
+    `sync` alone (for the viewer) needs none."""
+
+    def __init__(self, model: mujoco.MjModel, width: int = WIDTH, height: int = HEIGHT):
+        self.model = model
+        self.data = mujoco.MjData(model)
+        # The offscreen buffer bounds the image; a larger request would be refused.
+        self.size = (min(height, model.vis.global_.offheight),
+                     min(width, model.vis.global_.offwidth))
+        self.camera = 0 if model.ncam else -1
+        self._renderer: mujoco.Renderer | None = None
+
+    def sync(self, qpos: torch.Tensor, qvel: torch.Tensor) -> mujoco.MjData:
+        """Put one env's state into `data` with its derived quantities (positions of bodies)."""
+        self.data.qpos[:] = qpos.detach().cpu().numpy()
+        self.data.qvel[:] = qvel.detach().cpu().numpy()
+        mujoco.mj_forward(self.model, self.data)
+        return self.data
+
+    def render(self, qpos: torch.Tensor, qvel: torch.Tensor) -> np.ndarray:
+        if self._renderer is None:
+            unavailable()
+            height, width = self.size
+            try:
+                self._renderer = mujoco.Renderer(self.model, height=height, width=width)
+            except Exception as exc:  # no GL library, no display for glfw, a broken driver...
+                raise render_error(exc) from exc
+        self.sync(qpos, qvel)
+        self._renderer.update_scene(self.data, camera=self.camera)
+        return self._renderer.render()
+
+    def close(self) -> None:
+        if self._renderer is not None:
+            self._renderer.close()
+
+
+def unavailable() -> None:
+    """Raise the one line that says why nothing can render here, if nothing can."""
+    if gl.choice.backend is None:
+        raise LabError(f"offscreen rendering is unavailable: {gl.choice.problem}",
+                       "--video needs it; training and playing without --video do not")
+
+
+def render_error(exc: BaseException) -> LabError:
+    return LabError(
+        f"offscreen rendering failed with MUJOCO_GL={gl.backend()}: {first_line(exc)}",
+        f"on Debian/Ubuntu install {gl.PACKAGES['egl']} and use MUJOCO_GL=egl "
+        "(lab's default without a display)")

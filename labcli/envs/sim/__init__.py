@@ -1,0 +1,86 @@
+"""Batched MuJoCo simulations behind one interface; tasks see only torch views of the state."""
+
+from __future__ import annotations
+
+import importlib.util
+
+import mujoco
+import torch
+
+from labcli.errors import LabError
+
+BACKENDS = ("cpu", "warp")
+# A velocity this large (or NaN) means the integrator diverged; such envs are reset.
+UNSTABLE_VELOCITY = 1e6
+
+
+class Sim:
+    """`num_envs` copies of one MjModel. `qpos`, `qvel`, `ctrl` are live `[num_envs, n]` views."""
+
+    model: mujoco.MjModel
+    num_envs: int
+    device: torch.device
+    qpos: torch.Tensor
+    qvel: torch.Tensor
+    ctrl: torch.Tensor
+    nthread: int | None = None  # CPU threads that step the physics, where a backend has them
+
+    def step(self, nstep: int) -> None:
+        """Advance every env `nstep` physics steps holding `ctrl`."""
+        raise NotImplementedError
+
+    def reset_to_defaults(self, mask: torch.Tensor) -> None:
+        """Put the envs in `mask` back at the model's qpos0, zero velocity and time."""
+        raise NotImplementedError
+
+    def unstable(self) -> torch.Tensor:
+        """Envs whose state diverged (non-finite or absurd velocities)."""
+        return ~(self.qvel.abs() < UNSTABLE_VELOCITY).all(dim=1)
+
+    def close(self) -> None:
+        pass
+
+
+def default_backend(device: str | None = None) -> str:
+    """`warp` where the env lives on a CUDA device (or, with no device given, where CUDA is
+    available) and MuJoCo Warp is installed; `cpu` otherwise."""
+    on_gpu = torch.device(device).type == "cuda" if device else True
+    return "warp" if on_gpu and torch.cuda.is_available() and _warp_installed() else "cpu"
+
+
+def _warp_installed() -> bool:
+    """Checked without importing them, so choosing a backend stays cheap."""
+    return all(importlib.util.find_spec(name) for name in ("warp", "mujoco_warp"))
+
+
+def make_sim(backend: str, model: mujoco.MjModel, num_envs: int, device: str,
+             nthread: int | None = None) -> Sim:
+    if backend == "cpu":
+        from labcli.envs.sim.cpu import CpuSim
+
+        if torch.device(device).type != "cpu":
+            raise LabError(f"the cpu backend keeps its state on the CPU, not on '{device}'",
+                           "use --device cpu, or --backend warp for a GPU")
+        return CpuSim(model, num_envs, nthread)
+    if backend == "warp":
+        return _make_warp_sim(model, num_envs, device)
+    raise LabError(f"unknown backend '{backend}'", f"choose one of: {', '.join(BACKENDS)}")
+
+
+WARP_INSTALL_HINT = 'pip install -e ".[warp]" on a machine with an NVIDIA GPU, or use --backend cpu'
+
+
+def _make_warp_sim(model: mujoco.MjModel, num_envs: int, device: str) -> Sim:
+    """MuJoCo Warp on CUDA; warp is imported here only, so `lab` runs without it."""
+    if torch.device(device).type != "cuda":
+        raise LabError(f"the warp backend keeps its state on a CUDA device, not on '{device}'",
+                       "use --device cuda, or --backend cpu")
+    if not torch.cuda.is_available():
+        raise LabError("the warp backend needs CUDA, which torch cannot use here",
+                       WARP_INSTALL_HINT)
+    try:
+        from labcli.envs.sim.warp import WarpSim
+    except ImportError as exc:
+        raise LabError(f"the warp backend needs MuJoCo Warp, which is not installed ({exc})",
+                       WARP_INSTALL_HINT) from exc
+    return WarpSim(model, num_envs, device)

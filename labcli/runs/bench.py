@@ -1,0 +1,125 @@
+"""`lab bench` as a library call: env-steps/s of any registered task, and training steps/s."""
+
+from __future__ import annotations
+
+import io
+import tempfile
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import torch
+from rich.console import Console
+
+from labcli.envs import metrics
+from labcli.envs.env import LabVecEnv
+from labcli.errors import LabError
+from labcli.plugins import registry
+from labcli.plugins.policy import one_torch_thread
+from labcli.runs import training
+from labcli.runs.session import check_device
+
+TRAIN_ITERATIONS = 5
+
+
+@dataclass
+class BenchRow:
+    task: str
+    backend: str
+    num_envs: int
+    env_steps_per_s: float
+    framework: str | None = None
+    train_steps_per_s: float | None = None
+    threads: int | None = None  # the cpu backend's physics threads
+
+    def as_dict(self) -> dict:
+        return asdict(self)
+
+
+def rate(step: Callable[[], int], seconds: float, sync: Callable[[], None] = lambda: None) -> float:
+    """Env-steps/s of `step` (which returns the env-steps it took), after a warm-up. `sync`
+    waits for queued device work, so that a GPU is timed on what it did, not what it was given."""
+    for _ in range(3):
+        step()
+    sync()
+    count, start = 0, time.perf_counter()
+    while time.perf_counter() - start < seconds:
+        count += step()
+    sync()
+    return count / (time.perf_counter() - start)
+
+
+def env_rate(env: LabVecEnv, seconds: float) -> float:
+    """The env as a learner sees it: uniform random actions in, torch tensors out, and on the
+    CPU one torch thread, as lab's learners run it (`one_torch_thread`). Measured on 16 cores
+    at 4,096 cartpole envs: 293k env-steps/s with torch's 16 threads, 699k with one."""
+    env.reset(seed=0)
+    gen = torch.Generator(env.device).manual_seed(0)
+    shape = (env.num_envs, env.single_action_space.shape[0])
+
+    def step() -> int:
+        env.step(torch.rand(shape, generator=gen, device=env.device) * 2 - 1)
+        return env.num_envs
+
+    sync = torch.cuda.synchronize if env.device.type == "cuda" else (lambda: None)
+    with one_torch_thread(str(env.device)):
+        return rate(step, seconds, sync)
+
+
+def train_rate(task: str, framework: str, num_envs: int, backend: str | None,
+               device: str, overrides: Sequence[str] = ()) -> float:
+    """Steps/s of a short training run (collection and updates) in a throwaway logs dir."""
+    with tempfile.TemporaryDirectory(prefix="lab_bench_") as logs:
+        outcome = training.train(task, framework, num_envs=num_envs, device=device,
+                                 backend=backend, max_iterations=TRAIN_ITERATIONS,
+                                 overrides=overrides,
+                                 logs_dir=Path(logs), console=Console(file=io.StringIO()),
+                                 command=["lab", "bench"])
+    return outcome.summary["steps"] / max(outcome.summary["wall_time_s"], 1e-9)
+
+
+def time_to_success(run_dir: Path, threshold: float) -> tuple[float, int] | None:
+    """Seconds of training (event wall time since the run's first event, which is written once
+    the env is built) and steps at which the logged success rate first reached `threshold`."""
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    events = EventAccumulator(str(run_dir), size_guidance={"scalars": 0})
+    events.Reload()
+    if metrics.SUCCESS_RATE not in events.Tags()["scalars"]:
+        return None
+    start = events.FirstEventTimestamp()
+    for scalar in events.Scalars(metrics.SUCCESS_RATE):
+        if scalar.value >= threshold:
+            return scalar.wall_time - start, scalar.step
+    return None
+
+
+def bench(task: str, num_envs: Sequence[int], *, backend: str | None = None,
+          device: str | None = None, framework: str | None = None,
+          seconds: float = 3.0, threads: int | None = None) -> list[BenchRow]:
+    spec = registry.get_task(task)
+    if framework is not None:
+        registry.get_framework(framework)  # an unknown name fails before any measuring
+    device = check_device(device, backend)
+    if not num_envs or any(n <= 0 for n in num_envs):
+        raise LabError(f"--num-envs must be positive integers, got {list(num_envs)}",
+                       "e.g. --num-envs 16,256,1024")
+    if threads is not None and threads <= 0:
+        raise LabError(f"--threads must be a positive integer, got {threads}",
+                       "leave it out to use the cores this process may use")
+    overrides = [f"env.threads={threads}"] if threads is not None else []
+    rows = []
+    for n in num_envs:
+        env = LabVecEnv(spec, spec.config_class(num_envs=n, threads=threads), backend=backend,
+                        device=device)
+        try:
+            row = BenchRow(task, env.backend, n, env_rate(env, seconds),
+                           threads=env.sim.nthread)
+        finally:
+            env.close()
+        if framework is not None:
+            row.framework = framework
+            row.train_steps_per_s = train_rate(task, framework, n, backend, device, overrides)
+        rows.append(row)
+    return rows

@@ -1,0 +1,222 @@
+"""Resolve env and agent configs: defaults ← task's per-framework defaults ← file ← --set."""
+
+from __future__ import annotations
+
+import copy
+import difflib
+import types
+import typing
+from collections.abc import Iterable, Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import yaml
+from pydantic import BaseModel, ValidationError
+
+from labcli.envs.spec import TaskConfig, TaskSpec
+from labcli.errors import LabError
+from labcli.plugins.framework import AgentConfig, FrameworkSpec
+
+SECTIONS = ("env", "agent")
+
+
+def parse_set(items: Iterable[str]) -> dict[str, dict[str, Any]]:
+    """`["env.num_envs=8", "agent.learning_rate=3e-4"]` → nested dicts per section. Values are
+    read as YAML (numbers, booleans, lists); pydantic then checks them against the models."""
+    out: dict[str, dict[str, Any]] = {s: {} for s in SECTIONS}
+    for item in items:
+        key, sep, raw = item.partition("=")
+        key = key.strip()
+        section, _, path = key.partition(".")
+        if not sep or section not in SECTIONS or not path:
+            raise LabError(f"--set '{item}' is not SECTION.KEY=VALUE",
+                           "e.g. --set agent.learning_rate=3e-4 or --set env.num_envs=32")
+        try:
+            value = yaml.safe_load(raw) if raw.strip() else ""
+        except Exception:  # PyYAML raises more than YAMLError (e.g. ValueError for 2020-13-45)
+            value = raw
+        _set_path(out[section], section, path.split("."), value)
+    return out
+
+
+def _set_path(tree: dict[str, Any], section: str, keys: list[str], value: Any) -> None:
+    for depth, key in enumerate(keys[:-1]):
+        tree = tree.setdefault(key, {})
+        if not isinstance(tree, dict):
+            parent = ".".join([section, *keys[:depth + 1]])
+            raise LabError(f"--set {parent} holds a value, so it has no key '{keys[depth + 1]}'",
+                           f"set either {parent} or keys below it, not both")
+    tree[keys[-1]] = value
+
+
+def load_file(path: Path) -> dict[str, dict[str, Any]]:
+    try:
+        data = yaml.safe_load(path.read_text()) or {}
+    except FileNotFoundError as exc:
+        raise LabError(f"config file {path} does not exist") from exc
+    except (OSError, UnicodeDecodeError) as exc:
+        reason = getattr(exc, "strerror", None) or exc
+        raise LabError(f"config file {path} cannot be read: {reason}", "pass a YAML file") from exc
+    except yaml.YAMLError as exc:
+        raise LabError(f"config file {path} is not valid YAML: {str(exc).splitlines()[0]}") from exc
+    if not isinstance(data, dict) or set(data) - set(SECTIONS):
+        raise LabError(f"config file {path} must be a mapping with keys 'env' and/or 'agent'")
+    return {s: data.get(s) or {} for s in SECTIONS}
+
+
+def merge(base: Mapping[str, Any], override: Mapping[str, Any]) -> dict[str, Any]:
+    """Deep-merge `override` into a copy of `base`."""
+    out = copy.deepcopy(dict(base))
+    for key, value in override.items():
+        if isinstance(value, Mapping) and isinstance(out.get(key), Mapping):
+            out[key] = merge(out[key], value)
+        else:
+            out[key] = copy.deepcopy(value)
+    return out
+
+
+def build(model: type[BaseModel], section: str, layers: Iterable[Mapping[str, Any]]) -> BaseModel:
+    """Validate the merged `layers` as `model`; a bad key or value becomes one clear LabError."""
+    data: dict[str, Any] = {}
+    for layer in layers:
+        data = merge(data, layer)
+    # Dict-valued fields (reward weights) merge over their defaults rather than replace them.
+    defaults = model().model_dump()
+    for key, value in data.items():
+        if isinstance(value, Mapping) and isinstance(defaults.get(key), dict):
+            data[key] = merge(defaults[key], value)
+    _reject_bools_as_numbers(model, data, section)
+    try:
+        return model.model_validate(data)
+    except ValidationError as exc:
+        raise _explain(exc, model, section) from None
+
+
+def check_saved(model: type[BaseModel], section: str, path: Path, data: Mapping[str, Any]
+                ) -> None:
+    """Validate a run's saved params on their own, so that an error names the file (damaged or
+    edited by hand) rather than a key the user never passed."""
+    try:
+        build(model, section, [data])
+    except LabError as exc:
+        raise LabError(f"{path}: {exc.message}", exc.hint or "fix or restore the file") from None
+
+
+def _reject_bools_as_numbers(model: type[BaseModel], data: Mapping[str, Any], section: str
+                             ) -> None:
+    """pydantic's lax mode reads `true` as 1 for a number (`--set env.num_envs=true` would run
+    one env); strict mode would also refuse the string YAML makes of `3e-4`. So: lax, but no
+    booleans where only numbers go."""
+    for key, value in data.items():
+        field = model.model_fields.get(key)
+        path = _bool_in_number(field.annotation, value, [key]) if field else None
+        if path is not None:
+            annotation = _annotation_at(field.annotation, len(path) - 1)
+            raise LabError(f"bad value for '{'.'.join([section, *map(str, path)])}': a boolean "
+                           f"where a number is expected (got {_value_at(value, path[1:])!r})",
+                           f"expected {_type_name(annotation)}")
+
+
+def _bool_in_number(annotation: Any, value: Any, path: list) -> list | None:
+    """The path to a bool inside `value` where `annotation` takes only numbers, or None."""
+    origin, args = typing.get_origin(annotation), typing.get_args(annotation)
+    if origin is typing.Annotated:
+        return _bool_in_number(args[0], value, path)
+    if origin in (typing.Union, types.UnionType):
+        numeric = [a for a in args if a is not type(None)]
+        return _bool_in_number(numeric[0], value, path) if len(numeric) == 1 else None
+    if isinstance(value, bool):
+        return path if _numbers_only(annotation) else None
+    if isinstance(value, (list, tuple)) and origin in (list, tuple, set, frozenset) and args:
+        for i, item in enumerate(value):
+            item_type = args[0] if origin is not tuple or args[-1] is Ellipsis else \
+                args[min(i, len(args) - 1)]
+            found = _bool_in_number(item_type, item, [*path, i])
+            if found:
+                return found
+    if isinstance(value, Mapping) and origin is dict and len(args) == 2:
+        for key, item in value.items():
+            found = _bool_in_number(args[1], item, [*path, key])
+            if found:
+                return found
+    return None
+
+
+def _numbers_only(annotation: Any) -> bool:
+    if typing.get_origin(annotation) is typing.Annotated:
+        return _numbers_only(typing.get_args(annotation)[0])
+    return annotation in (int, float)
+
+
+def _value_at(value: Any, path: list) -> Any:
+    for key in path:
+        value = value[key]
+    return value
+
+
+def _explain(exc: ValidationError, model: type[BaseModel], section: str) -> LabError:
+    err = exc.errors()[0]
+    key = ".".join([section, *(str(p) for p in err["loc"])])
+    if err["type"] == "extra_forbidden":
+        fields = sorted(model.model_fields)
+        close = difflib.get_close_matches(str(err["loc"][-1]), fields, n=1)
+        hint = f"did you mean '{section}.{close[0]}'? " if close else ""
+        return LabError(f"unknown key '{key}'",
+                        hint + f"keys of {section}: {', '.join(fields)}")
+    field = model.model_fields.get(str(err["loc"][0]))
+    expected = _type_name(_annotation_at(field.annotation, len(err["loc"]) - 1)) if field \
+        else "a valid value"
+    return LabError(f"bad value for '{key}': {err['msg']} (got {err.get('input')!r})",
+                    f"expected {expected}")
+
+
+def _annotation_at(annotation: Any, depth: int) -> Any:
+    """The type of an item `depth` levels inside a container field (dict value, list item)."""
+    for _ in range(depth):
+        args = [a for a in typing.get_args(annotation) if a is not type(None)]
+        if not args:
+            break
+        annotation = args[-1]
+    return annotation
+
+
+def _type_name(annotation: Any) -> str:
+    if typing.get_origin(annotation) is typing.Literal:
+        return "one of " + ", ".join(repr(a) for a in typing.get_args(annotation))
+    return getattr(annotation, "__name__", None) or str(annotation).replace("typing.", "")
+
+
+def resolve(spec: TaskSpec, fw: FrameworkSpec, *, base: tuple[dict, dict] | None = None,
+            config_file: Path | None = None, overrides: Sequence[str] = (),
+            num_envs: int | None = None, max_iterations: int | None = None,
+            seed: int | None = None) -> tuple[TaskConfig, AgentConfig]:
+    """defaults ← task's defaults for this framework ← `base` (a resumed run) ← file ← --set ←
+    the explicit flags."""
+    defaults = spec.framework_defaults.get(fw.name, {})
+    layers = [{"env": dict(defaults.get("env", {})), "agent": dict(defaults.get("agent", {}))}]
+    if base is not None:
+        layers.append({"env": base[0], "agent": base[1]})
+    if config_file is not None:
+        layers.append(load_file(config_file))
+    layers.append(parse_set(overrides))
+    flags: dict[str, dict[str, Any]] = {"env": {}, "agent": {}}
+    if num_envs is not None:
+        flags["env"]["num_envs"] = num_envs
+    if max_iterations is not None:
+        flags["agent"]["max_iterations"] = max_iterations
+    if seed is not None:
+        flags["agent"]["seed"] = seed
+    layers.append(flags)
+    env_cfg = build(spec.config_class, "env", [layer["env"] for layer in layers])
+    agent_cfg = build(fw.agent_config_class, "agent", [layer["agent"] for layer in layers])
+    return env_cfg, agent_cfg
+
+
+def to_yaml(model: BaseModel) -> str:
+    return yaml.safe_dump(model.model_dump(mode="json"), sort_keys=False)
+
+
+def dump(env: BaseModel, agent: BaseModel) -> str:
+    """Both sections as one YAML document, the form `load_file` reads back."""
+    return yaml.safe_dump({"env": env.model_dump(mode="json"),
+                           "agent": agent.model_dump(mode="json")}, sort_keys=False)

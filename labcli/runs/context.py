@@ -1,0 +1,180 @@
+"""The TrainContext a framework's `train` is handed: lab's side of the contract in
+labcli/plugins/framework.py. It logs the figures every framework shares, drives the progress
+bar, writes checkpoints atomically with the env state beside them, keeps the last good state of
+a diverging run, and turns SIGINT/SIGTERM into a stop at the next env step."""
+
+from __future__ import annotations
+
+import os
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import torch
+from torch import nn
+from torch.utils.tensorboard import SummaryWriter
+
+from labcli.envs import metrics, mjwarnings
+from labcli.errors import TrainingDiverged
+from labcli.plugins.framework import AgentConfig, Checkpoint, Framework, TrainContext
+from labcli.runs import interrupt, snapshot
+from labcli.runs.lastgood import LastGood
+from labcli.runs.progress import TrainProgress
+
+NONFINITE_NETWORKS = "its update left non-finite values (NaN or inf) in the agent's networks"
+DIVERGED_HINT = ("lower agent.learning_rate (or raise its clipping) and resume from the last good "
+                 "checkpoint with --checkpoint")
+
+
+@dataclass
+class RunContext(TrainContext):
+    """lab's TrainContext: the one a framework's `train` is handed (see its docstrings in
+    labcli/plugins/framework.py for the contract)."""
+
+    cfg: AgentConfig
+    env: Any
+    framework: Framework
+    run_dir: Path
+    seed: int
+    device: str
+    progress: TrainProgress
+    writer: SummaryWriter
+    resume: Checkpoint | None = None
+    resume_state: dict[str, Any] | None = None
+    stop: interrupt.StopRequest = field(default_factory=interrupt.StopRequest)
+    mujoco_warnings: mjwarnings.WarningCounter = field(default_factory=mjwarnings.WarningCounter)
+    iteration: int = 0
+    steps: int = 0
+    last_stats: dict[str, float] = field(default_factory=dict)
+    saved_iteration: int = -1
+    # The env and random generators at the end of the last iteration, saved with its checkpoint.
+    _boundary: dict[str, Any] | None = None
+    _told_mujoco_warnings: bool = False
+    _networks: list[nn.Module] = field(default_factory=list)
+    last_good: LastGood = field(init=False)
+    _clock: tuple[float, int] = (0.0, 0)
+
+    def __post_init__(self) -> None:
+        if self.resume is not None:
+            self.iteration = self.saved_iteration = self.resume.iteration
+        if self.resume_state is not None:
+            self.steps = self.resume_state["steps"]
+        self._clock = (time.perf_counter(), self.steps)
+        self.last_good = LastGood(self.run_dir, self.framework.spec)
+        self.last_good.discard()  # left by a killed run: not this run's, never to be committed
+
+    @property
+    def stop_requested(self) -> bool:
+        return self.stop.requested
+
+    def restore_rng(self) -> None:
+        # Building the agent draws random weights: restored after it, a resumed run samples
+        # what an unbroken one would.
+        if self.resume_state is not None:
+            snapshot.set_rng_state(self.resume_state["rng"])
+
+    def end_iteration(self, iteration: int, steps: int, save: Callable[[Path], None],
+                      scalars: Mapping[str, float] | None = None) -> bool:
+        now = time.perf_counter()
+        t0, s0 = self._clock
+        steps_per_s = (steps - s0) / max(now - t0, 1e-9)
+        self._clock = (now, steps)
+        self.iteration, self.steps = iteration, steps
+        stats = self.env.pop_stats()
+        if stats:
+            self.last_stats = stats
+        bad = stats.get(metrics.NONFINITE_ACTIONS, 0)
+        if bad:  # the candidate, which acted in this rollout, is bad
+            raise self._diverged(iteration, "the policy emitted non-finite actions (NaN or inf) "
+                                 f"in {bad:.0f} env steps", candidate_proven=False)
+        if not self.networks_finite():  # the candidate acted well; this update broke it
+            raise self._diverged(iteration, NONFINITE_NETWORKS, candidate_proven=True)
+        self.last_good.promote()
+        self._boundary = {"env": self.env.get_state(), "rng": snapshot.rng_state(),
+                          "iteration": iteration, "steps": steps}
+        self.last_good.keep(iteration, self._boundary, save)
+        figures = {**stats, metrics.STEPS_PER_S: steps_per_s,
+                   metrics.MUJOCO_WARNINGS: self._pop_mujoco_warnings(), **(scalars or {})}
+        for tag, value in figures.items():
+            self.writer.add_scalar(tag, value, steps)
+        self.progress.update(iteration, steps_per_s, self.last_stats.get(metrics.MEAN_RETURN),
+                             self.last_stats.get(metrics.SUCCESS_RATE))
+        due = iteration % self.cfg.save_interval == 0 or iteration >= self.cfg.max_iterations
+        if due or self.stop_requested:
+            self.save(save)
+        return self.stop_requested
+
+    def watch(self, *networks: nn.Module) -> None:
+        # Checked after each update, so that a diverged update stops training with a clear
+        # message, not a library's traceback later.
+        self._networks.extend(networks)
+
+    def networks_finite(self) -> bool:
+        return all(_finite(module) for module in self._networks)
+
+    def failed_on_networks(self, exc: Exception) -> TrainingDiverged:
+        """For a library that failed in an update on the NaN it produced: the candidate is
+        proven if it acted finitely in the rollout before."""
+        acted_finitely = not self.env.pop_stats().get(metrics.NONFINITE_ACTIONS, 0)
+        error = self._diverged(self.iteration + 1, NONFINITE_NETWORKS, acted_finitely)
+        error.message += f" ({self.framework.name} failed on them: {type(exc).__name__}: {exc})"
+        return error
+
+    def _diverged(self, iteration: int, what: str, candidate_proven: bool) -> TrainingDiverged:
+        self.last_good.commit(candidate_proven)
+        return TrainingDiverged(f"iteration {iteration}: {what}; training stopped. "
+                                f"{self._last_good()}", DIVERGED_HINT)
+
+    def _pop_mujoco_warnings(self) -> int:
+        count = self.mujoco_warnings.pop()
+        if count and not self._told_mujoco_warnings:
+            self._told_mujoco_warnings = True
+            self.progress.console.print(
+                f"note: MuJoCo warns '{self.mujoco_warnings.first}'; the envs concerned are "
+                f"reset and counted ({metrics.INSTABILITIES}), and further warnings in "
+                f"{metrics.MUJOCO_WARNINGS}", highlight=False, soft_wrap=True)
+        return count
+
+    def save(self, save: Callable[[Path], None]) -> None:
+        """Through a temporary file and a rename, so that a kill mid-write leaves the previous
+        checkpoint as the latest complete one. The env and generator state goes first: a
+        checkpoint's presence implies its state's. A policy that acts with NaN is never renamed
+        into place: it stops training instead."""
+        if self.saved_iteration == self.iteration:
+            return
+        if self._boundary is not None and self._boundary["iteration"] == self.iteration:
+            snapshot.save(snapshot.path_of(self.run_dir, self.iteration), self._boundary)
+        target = self.framework.spec.checkpoint_path(self.run_dir, self.iteration)
+        tmp = target.with_name(f".tmp_{target.name}")
+        save(tmp)
+        if not self._acts_finitely(tmp):
+            tmp.unlink()
+            raise self._diverged(self.iteration, "the policy's actions are not finite (NaN or "
+                                 "inf) after this iteration's update", candidate_proven=False)
+        os.replace(tmp, target)
+        self.saved_iteration = self.iteration
+
+    def _acts_finitely(self, checkpoint: Path) -> bool:
+        # Loading builds networks, which draws random weights (SB3's load even reseeds every
+        # generator): the run must go on with the numbers it would have drawn without the check.
+        rng = snapshot.rng_state()
+        try:
+            # Policies load onto the CPU (portable checkpoints); the env may be on a GPU.
+            policy = self.framework.load_policy(checkpoint, self.env).to(self.env.device)
+            with torch.no_grad():
+                return bool(torch.isfinite(policy(self.env.observations())).all())
+        finally:
+            snapshot.set_rng_state(rng)
+
+    def _last_good(self) -> str:
+        found = self.framework.spec.checkpoints(self.run_dir)
+        if not found:
+            return "No checkpoint was written before it."
+        return f"The last good checkpoint is {found[-1].path.name}."
+
+
+def _finite(module: nn.Module) -> bool:
+    return all(bool(torch.isfinite(t).all()) for t in module.state_dict().values()
+               if t.is_floating_point())

@@ -1,0 +1,70 @@
+"""SIGINT and SIGTERM as a stop request that training honours at its next step, rather than an
+exception raised wherever Python happens to be (mid-checkpoint, inside a library's update)."""
+
+from __future__ import annotations
+
+import signal
+import threading
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
+from typing import Any
+
+from labcli.errors import Interrupted
+
+SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+
+@dataclass
+class StopRequest:
+    """The first SIGINT/SIGTERM received while deferred; `signum` stays None until then."""
+
+    signum: int | None = None
+
+    @property
+    def requested(self) -> bool:
+        return self.signum is not None
+
+    def request(self, signum: int = signal.SIGINT) -> None:
+        if self.signum is None:
+            self.signum = signum
+
+    @property
+    def exit_code(self) -> int:
+        """The shell's convention for a process ended by a signal: 130 for SIGINT, 143 for
+        SIGTERM."""
+        return 128 + int(self.signum or signal.SIGINT)
+
+    @property
+    def name(self) -> str:
+        return signal.Signals(self.signum or signal.SIGINT).name
+
+
+@contextmanager
+def deferred(stop: StopRequest | None = None) -> Iterator[StopRequest]:
+    """Inside, the first SIGINT or SIGTERM only records itself in the returned StopRequest; a
+    second one raises KeyboardInterrupt (the way out of a stop that hangs). The previous
+    handlers come back on exit. Outside the main thread signals cannot be caught: nothing
+    changes there."""
+    stop = stop if stop is not None else StopRequest()
+    if threading.current_thread() is not threading.main_thread():
+        yield stop
+        return
+
+    def handler(signum: int, frame: Any) -> None:
+        if stop.requested:
+            raise KeyboardInterrupt
+        stop.request(signum)
+
+    previous = {s: signal.signal(s, handler) for s in SIGNALS}
+    try:
+        yield stop
+    finally:
+        for s, h in previous.items():
+            signal.signal(s, h)
+
+
+def before_run(stop: StopRequest) -> Interrupted:
+    """The error of a `lab train` stopped before its run dir existed."""
+    return Interrupted(f"interrupted by {stop.name} before the run started; nothing was written",
+                       stop.exit_code)

@@ -1,0 +1,76 @@
+"""What a `lab train` is about to do, worked out from specs, configs and the run dir alone (no
+torch, no learning library): so that bad input fails at once, and a valid command says in its
+first line what it will do before the seconds of importing and building start."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from labcli.errors import LabError
+from labcli.plugins import registry
+from labcli.plugins.framework import AgentConfig, Checkpoint, FrameworkSpec
+from labcli.runs import checkpoints, config, rundir
+from labcli.runs.video import VideoSettings
+
+
+@dataclass
+class TrainPlan:
+    spec: Any  # a TaskSpec, or the spec of a gym: task
+    framework: FrameworkSpec
+    env_cfg: Any
+    agent_cfg: AgentConfig
+    logs_dir: Path
+    device: str | None
+    backend: str | None
+    run_name: str | None = None
+    run: rundir.Run | None = None  # the run a resume continues
+    resume: Checkpoint | None = None
+    video: VideoSettings | None = None
+
+    @property
+    def new_run_parent(self) -> Path:
+        return self.logs_dir / self.framework.name / self.spec.name
+
+    def describe(self) -> str:
+        """One line: what is about to be trained, how big, and where a resume goes on."""
+        what = (f"{self.spec.name} with {self.framework.name}: {self.env_cfg.num_envs} envs, "
+                f"seed {self.agent_cfg.seed}")
+        if self.resume is None:
+            return f"train {what}, {self.agent_cfg.max_iterations} iterations"
+        return (f"resume {self.run.dir} from {self.resume.path.name}: {what}, iterations "
+                f"{self.resume.iteration + 1} to {self.agent_cfg.max_iterations}")
+
+
+def plan(task: str, framework: str, *, num_envs: int | None = None, seed: int | None = None,
+         max_iterations: int | None = None, device: str | None = None,
+         backend: str | None = None, run_name: str | None = None,
+         overrides: Sequence[str] = (), config_file: Path | None = None,
+         checkpoint: str | None = None, logs_dir: Path | None = None,
+         video: VideoSettings | None = None) -> TrainPlan:
+    """Resolve the task, the framework, the checkpoint to resume and the configs, or raise the
+    LabError that says what is wrong."""
+    logs_dir = logs_dir or rundir.default_logs_dir()
+    spec = registry.get_task(task)
+    fw = registry.get_framework(framework)
+    if num_envs is not None and num_envs <= 0:
+        raise LabError(f"--num-envs must be a positive integer, got {num_envs}")
+    run = resume = base = None
+    if checkpoint is not None:
+        run, resume = checkpoints.find(checkpoint, logs_dir, task, fw)
+        checkpoints.check_run_matches(run, task, framework)
+        base = (run.params(rundir.ENV_PARAMS), run.params(rundir.AGENT_PARAMS))
+        config.check_saved(spec.config_class, "env", run.dir / rundir.ENV_PARAMS, base[0])
+        config.check_saved(fw.agent_config_class, "agent", run.dir / rundir.AGENT_PARAMS,
+                           base[1])
+    env_cfg, agent_cfg = config.resolve(spec, fw, base=base, config_file=config_file,
+                                        overrides=overrides, num_envs=num_envs,
+                                        max_iterations=max_iterations, seed=seed)
+    if resume is not None and resume.iteration >= agent_cfg.max_iterations:
+        raise LabError(
+            f"checkpoint {resume.path.name} is at iteration {resume.iteration}, and max_iterations"
+            f" is {agent_cfg.max_iterations}", "pass a larger --max-iterations to train further")
+    return TrainPlan(spec, fw, env_cfg, agent_cfg, logs_dir, device, backend, run_name, run,
+                     resume, video)

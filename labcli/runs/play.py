@@ -1,0 +1,201 @@
+"""`lab play` as a library call: load a run's policy and roll it out deterministically."""
+
+from __future__ import annotations
+
+import enum
+import statistics
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from datetime import datetime
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from labcli.envs.make import make_env
+from labcli.envs.render.video import VideoRecorder
+from labcli.envs.render.viewer import Viewer, check_display
+from labcli.errors import LabError
+from labcli.plugins import registry
+from labcli.plugins.framework import Checkpoint, Framework
+from labcli.plugins.policy import Policy
+from labcli.runs import checkpoints, config, rundir
+from labcli.runs import video as videos
+from labcli.runs.video import VideoSettings
+
+TIME_OUT = "time_out"
+CPU = "cpu"  # play steps on the CPU, whatever the run trained on
+SANITY = "sanity"  # <logs>/sanity/<task>/<time>_<agent>/ holds sanity agents' videos
+
+
+class Agent(str, enum.Enum):
+    """Policies that need no training, to check a task before training it."""
+
+    zero = "zero"
+    random = "random"
+
+
+@dataclass
+class LoadedPolicy:
+    run: rundir.Run
+    spec: Any  # a TaskSpec, or the spec of a gym: task
+    framework: Framework
+    checkpoint: Checkpoint
+    env: Any  # the task's env, on the CPU
+    policy: Policy
+
+
+def load(*, run_dir: Path | None = None, checkpoint: Path | None = None,
+         task: str | None = None, framework: str | None = None, logs_dir: Path | None = None,
+         num_envs: int | None = None, seed: int = 0) -> LoadedPolicy:
+    """Find the run (a checkpoint's, `run_dir`, or the newest matching one), rebuild its env
+    from params/env.yaml on the CPU and load the checkpoint as a Policy."""
+    if num_envs is not None and num_envs <= 0:
+        raise LabError(f"--num-envs must be a positive integer, got {num_envs}")
+    logs_dir = logs_dir or rundir.default_logs_dir()
+    if checkpoint is not None:
+        run = rundir.open_run(checkpoint.parent if checkpoint.is_file() else checkpoint)
+    elif run_dir is not None:
+        run = rundir.open_run(run_dir)
+    else:
+        run = rundir.latest(logs_dir, task, framework)
+    manifest = run.manifest()
+    spec = registry.get_task(manifest["task"])
+    fw_spec = registry.get_framework(manifest["framework"])
+    _, ckpt = checkpoints.find(str(checkpoint or run.dir), logs_dir, spec.name, fw_spec)
+    layers = [run.params(rundir.ENV_PARAMS)]
+    config.check_saved(spec.config_class, "env", run.dir / rundir.ENV_PARAMS, layers[0])
+    if num_envs is not None:
+        layers.append({"num_envs": num_envs})
+    env_cfg = config.build(spec.config_class, "env", layers)
+    fw = fw_spec.load()
+    env = make_env(spec, env_cfg, backend=CPU, device="cpu", seed=seed)
+    try:
+        policy = fw.load_policy(ckpt.path, env)
+    except BaseException:
+        env.close()
+        raise
+    return LoadedPolicy(run, spec, fw, ckpt, env, policy)
+
+
+@dataclass
+class Episodes:
+    returns: list[float] = field(default_factory=list)
+    lengths: list[int] = field(default_factory=list)
+    successes: list[bool] = field(default_factory=list)
+    causes: list[str] = field(default_factory=list)
+    videos: list[Path] = field(default_factory=list)
+
+    @property
+    def success_rate(self) -> float:
+        return sum(self.successes) / len(self.successes) if self.successes else 0.0
+
+    @property
+    def mean_return(self) -> float:
+        return statistics.fmean(self.returns) if self.returns else float("nan")
+
+
+def rollout(env: Any, act, episodes: int, seed: int = 0) -> Episodes:
+    """Step `env` with `act(obs) -> actions` until `episodes` episodes have ended (or a viewer
+    in front of it is closed). Each env contributes its episodes in order, so with num_envs >=
+    episodes none favours short ones."""
+    out = Episodes()
+    obs, _ = env.reset(seed=seed)
+    names = env.termination_names
+    taken = torch.zeros(env.num_envs, dtype=torch.long)
+    per_env = -(-episodes // env.num_envs)  # ceil: the fewest episodes each env must give
+    while len(out.returns) < episodes and getattr(env, "running", True):
+        with torch.inference_mode():
+            obs, _, terminated, truncated, info = env.step(act(obs))
+        done = (terminated | truncated).cpu()
+        if not done.any():
+            continue
+        ep = info["episode"]
+        causes = info["terminations"].cpu()
+        for i in done.nonzero().flatten().tolist():
+            if taken[i] >= per_env or len(out.returns) >= episodes:
+                continue
+            taken[i] += 1
+            out.returns.append(float(ep["r"][i]))
+            out.lengths.append(int(ep["l"][i]))
+            out.successes.append(bool(ep["success"][i]))
+            hit = causes[i].nonzero().flatten().tolist()
+            out.causes.append(names[hit[0]] if hit else TIME_OUT)
+    return out
+
+
+@dataclass(frozen=True)
+class Show:
+    """How to look at a rollout: an mp4 of env 0 (`video`), MuJoCo's viewer, or neither."""
+
+    video: VideoSettings | None = None
+    viewer: bool = False
+
+    def __post_init__(self) -> None:
+        if self.viewer:
+            check_display()  # before any env is built
+
+
+def _rollout_shown(env, act, episodes: int, seed: int, show: Show,
+                   folder: Path) -> Episodes:
+    recorder = None if show.video is None else VideoRecorder(env, folder, show.video.length,
+                                                             interval=None)
+    shown = recorder or env
+    if show.viewer:
+        shown = Viewer(shown)
+    try:
+        eps = rollout(shown, act, episodes, seed)
+    finally:
+        if shown is not env:
+            shown.close()  # writes the video; its owner closes the env again, harmlessly
+    eps.videos = list(recorder.files) if recorder else []
+    return eps
+
+
+def play(*, episodes: int = 10, seed: int = 0, show: Show = Show(),
+         **where) -> tuple[LoadedPolicy, Episodes]:
+    if episodes <= 0:
+        raise LabError(f"--episodes must be a positive integer, got {episodes}")
+    if where.get("num_envs") is None:
+        where["num_envs"] = min(episodes, 256)
+    loaded = load(seed=seed, **where)
+    try:
+        folder = videos.folder(loaded.run.dir, videos.PLAY)
+        return loaded, _rollout_shown(loaded.env, loaded.policy, episodes, seed, show, folder)
+    finally:
+        loaded.env.close()
+
+
+def sanity(task: str, agent: Agent | str, *, episodes: int = 10, seed: int = 0,
+           num_envs: int | None = None, overrides: Sequence[str] = (), show: Show = Show(),
+           logs_dir: Path | None = None) -> tuple[Any, Episodes]:
+    """Roll out `task` with zero or uniformly random actions in [-1, 1] and no checkpoint: do
+    rewards, terminations and time-outs behave before a single training step is spent?"""
+    agent = Agent(agent)
+    if episodes <= 0:
+        raise LabError(f"--episodes must be a positive integer, got {episodes}")
+    if num_envs is not None and num_envs <= 0:
+        raise LabError(f"--num-envs must be a positive integer, got {num_envs}")
+    spec = registry.get_task(task)
+    layers = config.parse_set(overrides)
+    if layers["agent"]:
+        raise LabError(f"--agent {agent.value} has no agent settings to set",
+                       "only env.KEY=VALUE applies to a sanity agent")
+    env_cfg = config.build(spec.config_class, "env", [
+        layers["env"], {"num_envs": num_envs or min(episodes, 256)}])
+    env = make_env(spec, env_cfg, backend=CPU, device="cpu", seed=seed)
+    generator = torch.Generator().manual_seed(seed)
+    shape = (env.num_envs, *env.single_action_space.shape)
+
+    def act(obs: torch.Tensor) -> torch.Tensor:
+        if agent is Agent.zero:
+            return torch.zeros(shape)
+        return torch.rand(shape, generator=generator) * 2.0 - 1.0
+
+    try:
+        stamp = datetime.now().strftime("%Y-%m-%d_%H-%M-%S")
+        folder = videos.folder((logs_dir or rundir.default_logs_dir()) / SANITY / task
+                               / f"{stamp}_{agent.value}", videos.PLAY)
+        return spec, _rollout_shown(env, act, episodes, seed, show, folder)
+    finally:
+        env.close()

@@ -1,0 +1,213 @@
+"""One training session of a run: build the env and the pipeline, write the run dir's files, let
+the framework train with lab's TrainContext, and write the summary however it ends. Imports torch
+and the framework's library; `labcli/runs/training.py` has planned and announced it first."""
+
+from __future__ import annotations
+
+import math
+import shlex
+import sys
+import time
+from dataclasses import dataclass
+from datetime import datetime
+from importlib.metadata import PackageNotFoundError, version
+from pathlib import Path
+from typing import Any
+
+import torch
+from rich.console import Console
+from torch.utils.tensorboard import SummaryWriter
+
+from labcli import __version__
+from labcli.envs import metrics, mjwarnings, wrappers
+from labcli.envs.make import make_env
+from labcli.envs.sim import WARP_INSTALL_HINT, default_backend
+from labcli.envs.spec import TaskConfig
+from labcli.errors import LabError, TrainingDiverged
+from labcli.plugins import registry
+from labcli.plugins.framework import AgentConfig, Checkpoint, Framework
+from labcli.runs import config, interrupt, rundir, snapshot
+from labcli.runs import video as videos
+from labcli.runs.context import RunContext
+from labcli.runs.plan import TrainPlan
+from labcli.runs.progress import TrainProgress
+from labcli.runs.video import VideoSettings
+
+
+@dataclass
+class TrainOutcome:
+    run: rundir.Run
+    summary: dict[str, Any]
+
+
+def check_device(device: str | None, backend: str | None = None) -> str:
+    """The torch device of the env and the learner; None picks CUDA for the warp backend (asked
+    for, or the default where CUDA and MuJoCo Warp are usable), else the CPU."""
+    if backend == "warp" and not torch.cuda.is_available():
+        raise LabError("the warp backend needs CUDA, which torch cannot use here",
+                       WARP_INSTALL_HINT)
+    if device is None:
+        wants_gpu = backend == "warp" or (backend is None and default_backend() == "warp")
+        return "cuda" if wants_gpu else "cpu"
+    try:
+        dev = torch.device(device)
+    except RuntimeError as exc:
+        raise LabError(f"unknown device '{device}'", "use cpu, cuda or cuda:N") from exc
+    if dev.type == "cuda" and not torch.cuda.is_available():
+        raise LabError(f"device '{device}' asked for, but CUDA is not available here",
+                       "use --device cpu")
+    return str(dev)
+
+
+def run(plan: TrainPlan, stop: interrupt.StopRequest, console: Console,
+        command: list[str] | None = None) -> TrainOutcome:
+    """Build what `plan` says and train; nothing is written before the env and the checkpoint
+    to resume from are known to work."""
+    fw = plan.framework.load()
+    device = check_device(plan.device, plan.backend)
+    env_cfg, agent_cfg, run_ = plan.env_cfg, plan.agent_cfg, plan.run
+    # Before any simulation: a run that cannot be written must not cost a minute of start-up.
+    rundir.check_writable(run_.dir if run_ is not None else plan.new_run_parent)
+
+    snapshot.seed_all(agent_cfg.seed)
+    env = make_env(plan.spec, env_cfg, backend=plan.backend, device=device, seed=agent_cfg.seed)
+    try:
+        resume_state = None
+        if plan.resume is not None:
+            fw.load_policy(plan.resume.path, env)  # a corrupt or mismatched checkpoint fails here
+            resume_state = _resume_state(run_, plan.resume, env_cfg, console)
+        wrappers.validate(_pipeline(fw, agent_cfg, plan.video, None), fw.name)
+        if plan.video is not None:
+            env.render()  # no GL, or an env that cannot render, fails before a run dir exists
+        if stop.requested:
+            raise interrupt.before_run(stop)
+        if run_ is None:
+            run_ = rundir.create(plan.logs_dir, fw.name, plan.spec.name, plan.run_name)
+            rundir.write_atomic(run_.dir / rundir.ENV_PARAMS, config.to_yaml(env_cfg))
+        rundir.write_atomic(run_.dir / rundir.AGENT_PARAMS, config.to_yaml(agent_cfg))
+        argv = list(command) if command is not None else ["lab", *sys.argv[1:]]
+        rundir.write_atomic(run_.dir / rundir.COMMAND, shlex.join(argv) + "\n")
+        manifest = {
+            "task": plan.spec.name, "framework": fw.name, "seed": agent_cfg.seed,
+            "device": device, "backend": env.backend, "num_envs": env.num_envs,
+            "started": datetime.now().isoformat(timespec="seconds"),
+            **rundir.process_identity(), "state": rundir.RUNNING,
+            "versions": _versions(registry.loaded().provider(registry.FRAMEWORK, fw.name)),
+        }
+        if plan.resume is not None:
+            manifest["resumed_from"] = plan.resume.path.name
+        rundir.write_json(run_.dir / rundir.MANIFEST, manifest)
+        if resume_state is not None and resume_state["env"] is not None:
+            env.resume_from(resume_state["env"])
+        pipeline = _pipeline(fw, agent_cfg, plan.video, run_.dir)
+        return _run_training(fw, env, agent_cfg, run_, plan.resume, resume_state, stop, device,
+                             pipeline, console)
+    finally:
+        env.close()
+
+
+def _versions(fw_provider: registry.Provider) -> dict[str, str]:
+    out = {"lab": __version__}
+    for dist in ("mujoco", "torch", "gymnasium", fw_provider.dist):
+        try:
+            out[dist] = version(dist)
+        except PackageNotFoundError:
+            continue
+    return out
+
+
+def _resume_state(run: rundir.Run, resume: Checkpoint, env_cfg: TaskConfig,
+                  console: Console) -> dict[str, Any] | None:
+    """The env and generator state saved with `resume`, or None (with a note saying what that
+    changes) when there is none or it cannot apply."""
+    state = snapshot.load(snapshot.path_of(run.dir, resume.iteration))
+    if state is None:
+        console.print(f"note: {resume.path.name} has no saved env and random-generator state; "
+                      "the resumed run starts new episodes", highlight=False)
+    elif state["env"] is None:
+        console.print(f"note: the env of {resume.path.name} cannot save its episodes; the "
+                      "resumed run starts new ones", highlight=False)
+    elif state["env"]["qpos"].shape[0] != env_cfg.num_envs:
+        console.print(f"note: {resume.path.name} was saved with {state['env']['qpos'].shape[0]} "
+                      f"envs, not {env_cfg.num_envs}; the resumed run starts new episodes",
+                      highlight=False)
+        return None
+    return state
+
+
+def _pipeline(fw: Framework, cfg: AgentConfig, video: VideoSettings | None,
+              run_dir: Path | None) -> list[wrappers.Step]:
+    """The env-stage wrappers lab adds, then the framework's adapter and wrappers. The video
+    folder is known once the run dir exists; the order is checked before either."""
+    env_stage = [video.step(videos.folder(run_dir or Path(), videos.TRAIN))] if video else []
+    return [*env_stage, *fw.pipeline(cfg)]
+
+
+def _run_training(fw: Framework, env: Any, cfg: AgentConfig, run: rundir.Run,
+                  resume: Checkpoint | None, resume_state: dict[str, Any] | None,
+                  stop: interrupt.StopRequest, device: str, pipeline: list[wrappers.Step],
+                  console: Console) -> TrainOutcome:
+    description = f"{fw.name} · {env.task_spec.name} · {env.num_envs} envs"
+    writer = SummaryWriter(log_dir=str(run.dir))
+    progress = TrainProgress(cfg.max_iterations, description, console,
+                             start=resume.iteration if resume else 0)
+    ctx = RunContext(cfg=cfg, env=env, framework=fw, run_dir=run.dir, seed=cfg.seed,
+                       device=device, progress=progress, writer=writer, resume=resume,
+                       resume_state=resume_state, stop=stop)
+    t0 = time.perf_counter()
+    # A runs table shows the run as running from now on; the real summary replaces this one.
+    rundir.write_json(run.dir / rundir.SUMMARY, _summary(ctx, fw, run, rundir.RUNNING, 0.0))
+    state, error, wrapped = rundir.FAILED, None, None
+    try:
+        wrapped = wrappers.apply(env, pipeline, fw.name)
+        with progress, mjwarnings.counted(ctx.mujoco_warnings):
+            fw.train(wrapped, ctx)
+        state = rundir.INTERRUPTED if stop.requested else rundir.FINISHED
+    except KeyboardInterrupt:  # a second signal: the stop itself was taking too long
+        stop.request()
+        state = rundir.INTERRUPTED
+    except TrainingDiverged as exc:
+        error = exc
+    except Exception as exc:
+        # A library fails on NaN weights mid-update (e.g. sampling with a NaN std); any other
+        # failure is a bug and keeps its traceback.
+        if ctx.networks_finite():
+            raise
+        error = ctx.failed_on_networks(exc)
+    finally:
+        writer.close()
+        ctx.last_good.discard()
+        summary = _summary(ctx, fw, run, state, time.perf_counter() - t0)
+        if error is not None:
+            summary["error"] = error.message
+        rundir.write_json(run.dir / rundir.SUMMARY, summary)
+        run.update_manifest(state=state)
+        if wrapped is not None:
+            wrapped.close()  # env-stage wrappers write what they hold (a video cut short)
+    if error is not None:
+        raise error
+    if state == rundir.INTERRUPTED:
+        summary["signal"] = stop.signum
+    return TrainOutcome(run, summary)
+
+
+def _summary(ctx: RunContext, fw: Framework, run: rundir.Run, state: str,
+             wall: float) -> dict[str, Any]:
+    found = fw.spec.checkpoints(run.dir)
+    stats = ctx.last_stats
+    return {
+        "state": state,
+        "iterations": ctx.iteration,
+        "steps": ctx.steps,
+        "wall_time_s": round(wall, 2),
+        "mean_return": _finite_or_none(stats.get(metrics.MEAN_RETURN)),
+        "mean_episode_length": _finite_or_none(stats.get(metrics.MEAN_LENGTH)),
+        "success_rate": _finite_or_none(stats.get(metrics.SUCCESS_RATE)),
+        "checkpoint": found[-1].path.name if found else None,
+        "finished": datetime.now().isoformat(timespec="seconds"),
+    }
+
+
+def _finite_or_none(value: float | None) -> float | None:
+    """JSON has no NaN: an undefined figure is null."""
+    return value if value is not None and math.isfinite(value) else None

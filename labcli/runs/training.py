@@ -1,0 +1,49 @@
+"""`lab train` as a library call: plan, say what is about to happen, then run the session.
+SIGINT/SIGTERM from the first line on stop it cleanly: before the run dir exists, with nothing
+written (Interrupted); after, with a checkpoint and state 'interrupted'."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from rich.console import Console
+
+from labcli.plugins import registry
+from labcli.runs import interrupt
+from labcli.runs.plan import plan
+from labcli.runs.video import VideoSettings
+
+if TYPE_CHECKING:
+    from labcli.runs.session import TrainOutcome
+
+
+def train(task: str, framework: str, *, num_envs: int | None = None, seed: int | None = None,
+          max_iterations: int | None = None, device: str | None = None,
+          backend: str | None = None, run_name: str | None = None,
+          overrides: Sequence[str] = (), config_file: Path | None = None,
+          checkpoint: str | None = None, logs_dir: Path | None = None,
+          console: Console | None = None, command: Sequence[str] | None = None,
+          video: VideoSettings | None = None) -> TrainOutcome:
+    """Train `task` with `framework`; everything is validated before anything is written. With
+    `video`, env 0 is recorded into <run dir>/videos/train/."""
+    console = console or Console(stderr=True)
+    with interrupt.deferred() as stop:
+        try:
+            the_plan = plan(task, framework, num_envs=num_envs, seed=seed,
+                            max_iterations=max_iterations, device=device, backend=backend,
+                            run_name=run_name, overrides=overrides, config_file=config_file,
+                            checkpoint=checkpoint, logs_dir=logs_dir, video=video)
+            for failure in registry.loaded().failures:  # what they provide is missing: say so
+                console.print(f"warning: plugin '{failure.plugin}' ({failure.provider}) failed "
+                              f"to load: {failure.error}", highlight=False, soft_wrap=True)
+            console.print(the_plan.describe(), highlight=False, soft_wrap=True)
+            # torch, MuJoCo and the framework's library: seconds, after the line above.
+            from labcli.runs import session
+
+            return session.run(the_plan, stop, console,
+                               list(command) if command is not None else None)
+        except KeyboardInterrupt:  # a second signal before the run dir existed
+            stop.request()
+            raise interrupt.before_run(stop) from None

@@ -1,0 +1,34 @@
+"""The RSL-RL agent config: PPO's and the actor-critic's settings, as `--set agent.KEY=VALUE`
+sets them."""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import Field
+
+from labcli.plugins.framework import AgentConfig
+
+
+class RslRlPpoConfig(AgentConfig):
+    """RSL-RL's PPO and actor-critic settings, named as in Isaac Lab's RslRlPpoAlgorithmCfg."""
+
+    num_steps_per_env: int = Field(24, gt=0, description="steps per env per iteration")
+    actor_hidden_dims: list[int] = Field(default_factory=lambda: [64, 64])
+    critic_hidden_dims: list[int] = Field(default_factory=lambda: [64, 64])
+    activation: Literal["elu", "relu", "tanh", "selu", "lrelu", "gelu", "swish"] = "elu"
+    init_noise_std: float = Field(1.0, gt=0, description="initial std of the Gaussian actions")
+    empirical_normalization: bool = Field(
+        True, description="normalize observations by running mean and std (saved in checkpoints)")
+    learning_rate: float = Field(1e-3, gt=0)
+    schedule: Literal["adaptive", "fixed"] = "adaptive"
+    desired_kl: float | None = Field(0.01, gt=0, description="KL target of the adaptive lr")
+    num_learning_epochs: int = Field(5, gt=0)
+    num_mini_batches: int = Field(4, gt=0)
+    gamma: float = Field(0.99, gt=0, le=1)
+    lam: float = Field(0.95, gt=0, le=1)
+    clip_param: float = Field(0.2, gt=0)
+    entropy_coef: float = 0.005
+    value_loss_coef: float = 1.0
+    use_clipped_value_loss: bool = True
+    max_grad_norm: float = Field(1.0, gt=0)
