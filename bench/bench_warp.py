@@ -122,6 +122,7 @@ def raw_loop(task: str, num_envs: int, steps: int) -> dict:
     import mujoco
     import mujoco_warp as mjw
     import warp as wp
+
     from labcli.envs.sim.warp import constraint_capacity, init_warp
 
     spec = registry.get_task(task)

@@ -1,12 +1,12 @@
 """lab: train, play and export RL policies for MuJoCo robots with the library you prefer."""
 
-from importlib.metadata import PackageNotFoundError, version
-
 from labcli.envs.render import gl
 
-gl.settle()  # before any module imports mujoco, which reads MUJOCO_GL on import
+# The one place the version is written: pyproject.toml reads it from here, and `lab --version`
+# prints it without looking up the installed distribution.
+__version__ = "0.1.0"
 
-try:
-    __version__ = version("lab")
-except PackageNotFoundError:  # running from a source tree that was never installed
-    __version__ = "0.0.0+unknown"
+# MuJoCo reads MUJOCO_GL once, on its first import, and a value it cannot use fails that import.
+# This package's __init__ runs before the body of any labcli module, whatever that module imports
+# first: settle it here.
+gl.settle()

@@ -4,6 +4,7 @@ and gymnasium's registry do, so that listing what is installed imports no learni
 from __future__ import annotations
 
 import importlib
+import importlib.machinery
 import importlib.util
 from typing import Any
 
@@ -28,13 +29,21 @@ def resolve(ref: Any, what: str) -> Any:
 
 
 def missing_module(ref: Any) -> str | None:
-    """Why the module of a "module:attribute" reference cannot be found, without importing it
-    (its parent packages are imported); None when it can be, or `ref` is no string."""
+    """Why the module of a "module:attribute" reference cannot be found, found without importing
+    it or its parent packages (a library's __init__ may take seconds); None when it can be found,
+    or `ref` is no string."""
     if not isinstance(ref, str):
         return None
     module_name = ref.partition(":")[0]
+    top, *subs = module_name.split(".")
     try:
-        found = importlib.util.find_spec(module_name)
+        found = importlib.util.find_spec(top)
+        for depth, sub in enumerate(subs, start=1):
+            if found is None or found.submodule_search_locations is None:
+                break
+            name = ".".join([top, *subs[:depth - 1], sub])
+            found = importlib.machinery.PathFinder.find_spec(
+                name, list(found.submodule_search_locations))
     except (ImportError, ValueError) as exc:
         return f"{type(exc).__name__}: {first_line(exc)}"
     return None if found is not None else f"no module named '{module_name}'"

@@ -70,10 +70,9 @@ def write_dist(site: Path, dist: str, version: str, entry_point: str, source: st
     (info / "entry_points.txt").write_text(f"[lab]\n{entry_point} = {module}\n")
 
 
-def lab_list(monkeypatch) -> str:
+def lab_list() -> str:
     # Wide enough that no cell wraps, so that a name and its package stay on one line.
-    monkeypatch.setattr(cli, "out", Console(width=200))
-    result = CliRunner().invoke(cli.app, ["list"])
+    result = CliRunner().invoke(cli.app, ["list"], env={"COLUMNS": "200"})
     assert result.exit_code == 0, result.output
     return result.stdout
 
@@ -114,7 +113,7 @@ def test_example_is_listed_with_its_distribution_and_version(example, monkeypatc
     assert reg.provider("task", EXAMPLE_TASK) == Provider(EXAMPLE_PLUGIN, EXAMPLE_DIST,
                                                           EXAMPLE_VERSION)
     assert reg.failures == []
-    row = line_with(EXAMPLE_TASK, lab_list(monkeypatch))
+    row = line_with(EXAMPLE_TASK, lab_list())
     assert f"{EXAMPLE_DIST} {EXAMPLE_VERSION}" in row
     assert "random target" in row  # its description
 
@@ -243,7 +242,7 @@ def test_a_registered_plugin_provides_its_task(register_plugin, tmp_path, monkey
     env.reset()
     env.step(torch.zeros(2, 1))
     env.close()
-    row = line_with("cartpole_copy", lab_list(monkeypatch))
+    row = line_with("cartpole_copy", lab_list())
     assert f"copy {NOT_INSTALLED}" in row
 
     registry.pm.unregister(name="copy")
@@ -286,7 +285,7 @@ def test_a_task_from_a_failed_plugin_is_a_lab_error_naming_the_failure(register_
 
 
 def test_lab_list_shows_tasks_frameworks_wrappers_and_failures(register_plugin, monkeypatch):
-    output = lab_list(monkeypatch)
+    output = lab_list()
     for title in ("Tasks", "Frameworks", "Wrappers"):
         assert title in output
     assert "lab 0.1.0" in line_with("cartpole", output)
@@ -295,7 +294,7 @@ def test_lab_list_shows_tasks_frameworks_wrappers_and_failures(register_plugin, 
     assert "failed to load" not in output
 
     register_plugin(Broken(), "robot")
-    output = lab_list(monkeypatch)
+    output = lab_list()
     assert "Plugins that failed to load" in output
     row = line_with("robot", output)
     assert f"robot {NOT_INSTALLED}" in row and "RuntimeError: robot.xml not found" in row
@@ -312,7 +311,7 @@ def test_an_entry_point_that_fails_to_import_is_reported_by_name(tmp_path, monke
             "needs_libfoo", Provider("needs_libfoo", "lab-needs-libfoo", "0.2.0"),
             "ModuleNotFoundError: No module named 'lab_libfoo_that_is_not_installed'")]
         assert "cartpole" in reg.names("task")
-        row = line_with("needs_libfoo", lab_list(monkeypatch))
+        row = line_with("needs_libfoo", lab_list())
         assert "lab-needs-libfoo 0.2.0" in row and "ModuleNotFoundError" in row
 
 

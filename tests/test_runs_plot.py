@@ -90,9 +90,9 @@ def test_plot_draws_one_curve_per_run(logs, tmp_path):
 
 def test_plot_any_logged_tag_and_name_the_tags_of_an_unknown_one(logs, tmp_path):
     selected = plot.select(logs_dir=logs)
-    plot.plot(selected, metrics.MEAN_LENGTH, tmp_path / "length.png")
+    plot.plot(selected, tmp_path / "length.png", metrics.MEAN_LENGTH)
     with pytest.raises(LabError) as info:
-        plot.plot(selected, "Train/nope", tmp_path / "nope.png")
+        plot.plot(selected, tmp_path / "nope.png", "Train/nope")
     assert "Train/nope" in info.value.message and metrics.MEAN_RETURN in info.value.hint
     assert not (tmp_path / "nope.png").exists()
 

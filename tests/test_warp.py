@@ -14,7 +14,8 @@ import mujoco
 import pytest
 import torch
 from lab_cartpole.cartpole import Cartpole
-from lab_cartpole.config import MODEL, CartpoleConfig
+from lab_cartpole.config import CartpoleConfig
+from lab_cartpole.plugin import MODEL
 
 from labcli.envs import metrics
 from labcli.envs.env import LabVecEnv

@@ -9,20 +9,20 @@ from collections.abc import Callable
 from typing import Annotated, Any
 
 import typer
-from rich.text import Text
 
 from labcli import __version__
 from labcli.commands import bench, config, export, info, listing, play, plot, runs, train
-from labcli.commands.common import err, out
+from labcli.commands.common import err
 from labcli.errors import LabError
 
 SUMMARY = "Train, play and export RL policies for MuJoCo robots with SB3, RSL-RL or skrl."
 
 app = typer.Typer(help=f"{SUMMARY}\n\nExample: lab train --task cartpole --framework sb3",
-                  no_args_is_help=True, add_completion=True, pretty_exceptions_enable=False)
+                  no_args_is_help=True, add_completion=True, pretty_exceptions_enable=False,
+                  rich_markup_mode=None)
 config_app = typer.Typer(
     help="Look at resolved configs.\n\nExample: lab config show --task cartpole --framework sb3",
-    no_args_is_help=True)
+    no_args_is_help=True, rich_markup_mode=None)
 app.add_typer(config_app, name="config")
 
 
@@ -34,7 +34,9 @@ def one_line_errors(fn: Callable) -> Callable:
         try:
             return fn(*args, **kwargs)
         except LabError as exc:
-            err.print(Text.assemble(("error:", "bold red"), f" {exc}"), highlight=False,
+            from rich.text import Text
+
+            err().print(Text.assemble(("error:", "bold red"), f" {exc}"), highlight=False,
                       soft_wrap=True)
             raise typer.Exit(exc.exit_code) from None
 
@@ -50,7 +52,7 @@ config_app.command("show")(one_line_errors(config.show))
 
 def _version(value: bool) -> None:
     if value:
-        out.print(f"lab {__version__}")
+        typer.echo(f"lab {__version__}")
         raise typer.Exit()
 
 

@@ -42,7 +42,7 @@ def bench(
     rows = benches.bench(task, counts, backend=backend, device=device, framework=framework,
                          seconds=seconds, threads=threads)
     if as_json:
-        out.print_json(json.dumps([row.as_dict() for row in rows]))
+        out().print_json(json.dumps([row.as_dict() for row in rows]))
         return
     columns = ["task", "backend", "threads", "envs", "env-steps/s"]
     if framework:
@@ -54,4 +54,4 @@ def bench(
         if framework:
             cells += [row.framework, f"{row.train_steps_per_s:,.0f}"]
         rows_table.add_row(*cells)
-    out.print(rows_table)
+    out().print(rows_table)

@@ -4,23 +4,37 @@ completion of task and framework names, and table helpers."""
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
-from rich.console import Console
-from rich.table import Column, Table, box
 
-from labcli.envs import gym_spec
-from labcli.plugins import registry
-
-# No markup: what lab prints quotes run dirs, paths and user input, in which rich would take
-# '[...]' for markup and drop it ('.[warp]', a run named 'a[bold]b').
-out = Console(markup=False)
-err = Console(stderr=True, markup=False)
+if TYPE_CHECKING:
+    from rich.console import Console
+    from rich.table import Column, Table
 
 
+# Consoles are made where they print: completion, --help and --version print through typer and
+# need no rich, and each console reads the terminal's width then. No markup: what lab prints
+# quotes run dirs, paths and user input, in which rich would take '[...]' for markup and drop it
+# ('.[warp]', a run named 'a[bold]b').
+def out() -> Console:
+    from rich.console import Console
+
+    return Console(markup=False)
+
+
+def err() -> Console:
+    from rich.console import Console
+
+    return Console(stderr=True, markup=False)
+
+
+# Completion runs `lab` on every TAB: the registry (and gymnasium, after "gym:") load only then.
 def complete_task(incomplete: str) -> list[str]:
     """Registered tasks; after "gym:", gymnasium's registered ids."""
+    from labcli.envs import gym_spec
+    from labcli.plugins import registry
+
     if gym_spec.is_gym_task(incomplete):
         names = gym_spec.gym_ids()
     else:
@@ -29,6 +43,8 @@ def complete_task(incomplete: str) -> list[str]:
 
 
 def complete_framework(incomplete: str) -> list[str]:
+    from labcli.plugins import registry
+
     return [name for name in registry.loaded().names(registry.FRAMEWORK)
             if name.startswith(incomplete)]
 
@@ -49,7 +65,8 @@ RunOpt = Annotated[Path | None, typer.Option("--run", help="A run directory.")]
 LastOpt = Annotated[bool, typer.Option("--last", help="Newest run (the default).")]
 CheckpointOpt = Annotated[Path | None, typer.Option(help="A checkpoint file.")]
 SetOpt = Annotated[list[str] | None, typer.Option(
-    "--set", help="Override a setting: env.KEY=VALUE or agent.KEY=VALUE (repeatable).")]
+    "--set", metavar="SECTION.KEY=VALUE",
+    help="Override a setting: env.KEY=VALUE or agent.KEY=VALUE (repeatable).")]
 ConfigOpt = Annotated[Path | None, typer.Option(
     "--config", help="YAML file with 'env:' and 'agent:' settings (see `lab config show`).")]
 VideoLengthOpt = Annotated[int, typer.Option(help="Env steps per video.")]
@@ -57,7 +74,9 @@ JsonOpt = Annotated[bool, typer.Option("--json", help="Print JSON instead of a t
 
 
 def table(*columns: str | Column, title: str | None = None) -> Table:
-    return Table(*columns, title=title, box=box.SIMPLE_HEAD if out.is_terminal else None,
+    from rich.table import Table, box
+
+    return Table(*columns, title=title, box=box.SIMPLE_HEAD if out().is_terminal else None,
                  title_justify="left")
 
 
@@ -67,4 +86,4 @@ def figure(value: float | None, fmt: str) -> str:
 
 def say(text: str) -> None:
     """A line of results on stdout, never wrapped or highlighted (it may quote paths)."""
-    out.print(text, highlight=False, soft_wrap=True)
+    out().print(text, highlight=False, soft_wrap=True)

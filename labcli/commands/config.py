@@ -3,8 +3,6 @@
 from __future__ import annotations
 
 from labcli.commands.common import ConfigOpt, FrameworkArg, SetOpt, TaskArg, out
-from labcli.plugins import registry
-from labcli.runs import config
 
 
 def show(
@@ -17,7 +15,10 @@ def show(
 
     Example: lab config show --task cartpole --framework sb3 --set agent.n_epochs=10 > my.yaml
     """
+    from labcli.plugins import registry
+    from labcli.runs import config
+
     env_cfg, agent_cfg = config.resolve(
         registry.get_task(task), registry.get_framework(framework), config_file=config_file,
         overrides=set_ or [])
-    out.print(config.dump(env_cfg, agent_cfg), end="", highlight=False, soft_wrap=True)
+    out().print(config.dump(env_cfg, agent_cfg), end="", highlight=False, soft_wrap=True)

@@ -17,4 +17,4 @@ def info() -> None:
     rows = table("", "", title=f"lab {__version__}")
     for name, value in infos.collect().items():
         rows.add_row(name, value)
-    out.print(rows)
+    out().print(rows)

@@ -2,11 +2,7 @@
 
 from __future__ import annotations
 
-from importlib.metadata import version
-
 from labcli.commands.common import out, table
-from labcli.envs import gym_spec
-from labcli.plugins import registry
 
 
 def list_() -> None:
@@ -14,6 +10,11 @@ def list_() -> None:
 
     Example: lab list
     """
+    from importlib.metadata import version
+
+    from labcli.envs import gym_spec
+    from labcli.plugins import registry
+
     reg = registry.loaded()
     for kind, title in ((registry.TASK, "Tasks"), (registry.FRAMEWORK, "Frameworks"),
                         (registry.WRAPPER, "Wrappers")):
@@ -24,10 +25,10 @@ def list_() -> None:
         if kind == registry.TASK:
             rows.add_row(f"{gym_spec.PREFIX}<id>", gym_spec.DESCRIPTION,
                          f"gymnasium {version('gymnasium')}")
-        out.print(rows)
+        out().print(rows)
     failures = [*reg.failures, *reg.unloadable()]
     if failures:
         rows = table("plugin", "package", "error", title="Plugins that failed to load")
         for failure in failures:
             rows.add_row(failure.plugin, str(failure.provider), failure.error)
-        out.print(rows)
+        out().print(rows)

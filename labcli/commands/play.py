@@ -20,7 +20,6 @@ from labcli.commands.common import (
     table,
 )
 from labcli.errors import LabError
-from labcli.runs.video import VideoSettings
 
 if TYPE_CHECKING:
     from labcli.runs.play import Episodes
@@ -39,7 +38,8 @@ def play(
     episodes: Annotated[int, typer.Option(help="Episodes to roll out.")] = 10,
     seed: Annotated[int, typer.Option(help="Seed of the evaluation episodes.")] = 0,
     set_: Annotated[list[str] | None, typer.Option(
-        "--set", help="With --agent: override an env setting, env.KEY=VALUE.")] = None,
+        "--set", metavar="env.KEY=VALUE",
+        help="With --agent: override an env setting (repeatable).")] = None,
     video: Annotated[bool, typer.Option(
         "--video", help="Record env 0 as mp4 into <run>/videos/play/.")] = False,
     video_length: VideoLengthOpt = 200,
@@ -58,6 +58,7 @@ def play(
     if agent is None and set_:
         raise LabError("--set applies to --agent only", "a run plays with its own params")
     from labcli.runs import play as plays
+    from labcli.runs.video import VideoSettings
 
     show = plays.Show(VideoSettings(video_length, None) if video else None, viewer)
     if agent is not None:
@@ -78,7 +79,7 @@ def _print_episodes(eps: Episodes, title: str, has_success: bool) -> None:
                                               eps.successes, strict=True)):
         rows.add_row(str(i), f"{r:.1f}", str(n), cause,
                      ("yes" if ok else "no") if has_success else "-")
-    out.print(rows)
+    out().print(rows)
     causes = Counter(eps.causes)
     ended = ", ".join(f"{cause} {count}" for cause, count in causes.most_common())
     success = f"success rate {eps.success_rate:.0%}" if has_success else "no success criterion"

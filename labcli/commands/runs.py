@@ -6,10 +6,8 @@ import json
 from typing import Annotated
 
 import typer
-from rich.table import Column
 
 from labcli.commands.common import FrameworkOpt, JsonOpt, LogsDir, TaskOpt, figure, out, table
-from labcli.runs import rundir
 
 
 def runs(
@@ -25,10 +23,14 @@ def runs(
 
     Example: lab runs --task cartpole --state finished
     """
+    from rich.table import Column
+
+    from labcli.runs import rundir
+
     logs_dir = logs_dir or rundir.default_logs_dir()
     rows = rundir.table(logs_dir, task, framework, state)
     if as_json:
-        out.print_json(json.dumps([row.as_dict() for row in rows]))
+        out().print_json(json.dumps([row.as_dict() for row in rows]))
         return
     shown = table(Column("started", no_wrap=True), "task", "framework", "name", "steps",
                   "wall time", "return", "success", Column("state", no_wrap=True),
@@ -39,4 +41,4 @@ def runs(
             rundir.run_name(row.dir), figure(row.steps, "{:,}"),
             figure(row.wall_time_s, "{:.1f} s"), figure(row.mean_return, "{:.1f}"),
             figure(row.success_rate, "{:.0%}"), row.state)
-    out.print(shown)
+    out().print(shown)

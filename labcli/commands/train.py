@@ -17,8 +17,6 @@ from labcli.commands.common import (
     err,
     say,
 )
-from labcli.runs import training
-from labcli.runs import video as videos
 
 
 def train(
@@ -49,11 +47,14 @@ def train(
 
     Example: lab train --task cartpole --framework sb3 --set agent.learning_rate=1e-3 --video
     """
+    from labcli.runs import training
+    from labcli.runs import video as videos
+
     settings = videos.VideoSettings(video_length, video_interval) if video else None
     outcome = training.train(
         task, framework, num_envs=num_envs, seed=seed, max_iterations=max_iterations,
         device=device, backend=backend, run_name=run_name, overrides=set_ or [],
-        config_file=config_file, checkpoint=checkpoint, logs_dir=logs_dir, console=err,
+        config_file=config_file, checkpoint=checkpoint, logs_dir=logs_dir, console=err(),
         video=settings)
     s = outcome.summary
     figures = [f"{s['state']}", f"{s['iterations']} iterations", f"{s['steps']:,} steps",

@@ -13,10 +13,11 @@ from gymnasium.vector import AutoresetMode
 from gymnasium.vector.utils import batch_space
 
 from labcli.envs import metrics
+from labcli.envs.config import TaskConfig
 from labcli.envs.cuda_graph import GraphedStep
 from labcli.envs.render.scene import SceneRenderer
 from labcli.envs.sim import default_backend, make_sim
-from labcli.envs.spec import TaskConfig, TaskSpec
+from labcli.envs.spec import TaskSpec
 from labcli.errors import LabError
 
 UNSTABLE = "unstable"

@@ -15,7 +15,8 @@ from gymnasium.vector import AutoresetMode
 from gymnasium.vector.utils import batch_space
 
 from labcli.envs import metrics
-from labcli.envs.gym_spec import BACKEND, GymConfig, GymTaskSpec
+from labcli.envs.config import GymConfig
+from labcli.envs.gym_spec import BACKEND, GymTaskSpec
 from labcli.envs.render.scene import render_error, unavailable
 from labcli.errors import LabError, first_line
 

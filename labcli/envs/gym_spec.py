@@ -1,15 +1,15 @@
-"""`--task gym:<id>`: the spec and config of a gymnasium env as a lab task. gymnasium itself is
-imported only when such a task is asked for; the env is labcli/envs/gym_bridge.py."""
+"""`--task gym:<id>`: the spec of a gymnasium env as a lab task. gymnasium itself is imported only
+when such a task is asked for; its config is in labcli/envs/config.py, the env is
+labcli/envs/gym_bridge.py."""
 
 from __future__ import annotations
 
 import difflib
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any, Literal
+from typing import Any
 
-from pydantic import BaseModel, ConfigDict, Field
-
+from labcli import refs
 from labcli.errors import LabError, first_line
 
 PREFIX = "gym:"
@@ -36,21 +36,6 @@ FRAMEWORK_DEFAULTS = {
         "kl_adaptive_lr": False, "hidden_sizes": [64, 64], "activation": "tanh"}},
 }
 
-
-class GymConfig(BaseModel):
-    """The env settings of a gymnasium task (`--set env.KEY=VALUE`)."""
-
-    model_config = ConfigDict(extra="forbid", validate_assignment=True)
-
-    num_envs: int = Field(_ENVS, gt=0, description="parallel environments")
-    vectorization: Literal["sync", "async"] = Field(
-        "sync", description="gymnasium's SyncVectorEnv (one process) or AsyncVectorEnv")
-    max_episode_steps: int | None = Field(
-        None, gt=0, description="time-out in steps; None keeps the id's registered one")
-    kwargs: dict[str, Any] = Field(default_factory=dict,
-                                   description="keyword arguments of gymnasium.make")
-
-
 def is_gym_task(name: str) -> bool:
     return name.startswith(PREFIX)
 
@@ -62,15 +47,15 @@ class GymTaskSpec:
     name: str
     gym_id: str
     reward_threshold: float | None
-    config: type[GymConfig] = GymConfig
+    config: str = "labcli.envs.config:GymConfig"
     description: str = ""
     success: str = ""
     framework_defaults: Mapping[str, Mapping[str, Mapping[str, Any]]] = field(
         default_factory=lambda: FRAMEWORK_DEFAULTS)
 
     @property
-    def config_class(self) -> type[GymConfig]:
-        return self.config
+    def config_class(self) -> type:
+        return refs.resolve(self.config, f"task '{self.name}'")
 
     def lazy_refs(self) -> tuple[Any, ...]:
         return ()

@@ -10,8 +10,8 @@ from typing import ClassVar
 
 import torch
 
+from labcli.envs.config import TaskConfig
 from labcli.envs.sim import Sim
-from labcli.envs.spec import TaskConfig
 
 
 class Task:

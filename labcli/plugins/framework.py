@@ -4,7 +4,8 @@ A framework plugin registers a `FrameworkSpec`: its name, agent config, checkpoi
 wrappers (its adapter first) and, by a "module:Class" reference imported only when training or
 loading, its `Framework` subclass (`train`, `load_policy`, `pipeline`). Every framework runs
 under the same `lab train/play/export` commands and the same run layout. Nothing here imports
-torch or a learning library: listing and configuring stay instant.
+torch, pydantic or a learning library: listing stays instant. The agent's settings are an
+`AgentConfig` (labcli/plugins/config.py).
 """
 
 from __future__ import annotations
@@ -17,21 +18,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from pydantic import BaseModel, ConfigDict, Field
-
 from labcli import refs
 from labcli.envs.wrappers import Stage, Step, WrapperSpec
-
-
-class AgentConfig(BaseModel):
-    """Settings every framework has; a plugin subclasses it with its library's hyperparameters."""
-
-    # NaN and inf are never meant: they would only surface later as a diverged run.
-    model_config = ConfigDict(extra="forbid", validate_assignment=True, allow_inf_nan=False)
-
-    max_iterations: int = Field(100, gt=0, description="rollout + update cycles in total")
-    save_interval: int = Field(50, gt=0, description="iterations between checkpoints")
-    seed: int = Field(0, ge=0, lt=2**32, description="seeds the env, torch, NumPy and Python")
 
 
 @dataclass
@@ -49,14 +37,14 @@ class FrameworkSpec:
 
     name: str
     framework: type[Framework] | str
-    agent_config: type[AgentConfig] | str
+    agent_config: type | str  # a labcli.plugins.config.AgentConfig subclass
     wrappers: Sequence[WrapperSpec] = ()
     description: str = ""
     checkpoint_prefix: str = "model_"
     checkpoint_suffix: str = ".pt"
 
     @functools.cached_property
-    def agent_config_class(self) -> type[AgentConfig]:
+    def agent_config_class(self) -> type:
         return refs.resolve(self.agent_config, f"framework '{self.name}'")
 
     @functools.cached_property
@@ -101,10 +89,10 @@ class Framework:
         return self.spec.name
 
     @property
-    def agent_config(self) -> type[AgentConfig]:
+    def agent_config(self) -> type:
         return self.spec.agent_config_class
 
-    def pipeline(self, cfg: AgentConfig) -> list[Step]:
+    def pipeline(self, cfg: Any) -> list[Step]:
         """The adapter and framework-stage wrappers to train with under `cfg`; by default the
         adapter alone."""
         return [Step(self.spec.adapter)] if self.spec.adapter else []
@@ -127,7 +115,7 @@ class TrainContext(abc.ABC):
     and the calls that keep logging, progress, checkpoints and Ctrl-C the same for every
     library. lab implements it (labcli/runs/context.py); a plugin only uses it."""
 
-    cfg: AgentConfig  # the resolved agent config
+    cfg: Any  # the resolved agent config, an instance of the spec's AgentConfig subclass
     env: Any  # the unwrapped env (a LabVecEnv, or the gymnasium bridge)
     run_dir: Path
     seed: int

@@ -13,9 +13,11 @@ from typing import Any
 import yaml
 from pydantic import BaseModel, ValidationError
 
-from labcli.envs.spec import TaskConfig, TaskSpec
+from labcli.envs.config import TaskConfig
+from labcli.envs.spec import TaskSpec
 from labcli.errors import LabError
-from labcli.plugins.framework import AgentConfig, FrameworkSpec
+from labcli.plugins.config import AgentConfig
+from labcli.plugins.framework import FrameworkSpec
 
 SECTIONS = ("env", "agent")
 

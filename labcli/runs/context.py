@@ -18,7 +18,8 @@ from torch.utils.tensorboard import SummaryWriter
 
 from labcli.envs import metrics, mjwarnings
 from labcli.errors import TrainingDiverged
-from labcli.plugins.framework import AgentConfig, Checkpoint, Framework, TrainContext
+from labcli.plugins.config import AgentConfig
+from labcli.plugins.framework import Checkpoint, Framework, TrainContext
 from labcli.runs import interrupt, snapshot
 from labcli.runs.lastgood import LastGood
 from labcli.runs.progress import TrainProgress

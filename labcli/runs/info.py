@@ -31,7 +31,7 @@ def collect() -> dict[str, str]:
     reg = registry.loaded()
     for name in reg.names(registry.FRAMEWORK):
         out[f"framework {name}"] = f"from {reg.provider(registry.FRAMEWORK, name)}"
-    out["MUJOCO_GL"] = f"{gl.backend()} ({gl.choice.origin})"
+    out["MUJOCO_GL"] = f"{gl.choice.backend or 'none'} ({gl.choice.origin})"
     rendering = _rendering()
     out["offscreen rendering (--video)"] = rendering
     out["display (--viewer)"] = "yes" if gl.has_display() else "no"

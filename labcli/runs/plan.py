@@ -11,7 +11,8 @@ from typing import Any
 
 from labcli.errors import LabError
 from labcli.plugins import registry
-from labcli.plugins.framework import AgentConfig, Checkpoint, FrameworkSpec
+from labcli.plugins.config import AgentConfig
+from labcli.plugins.framework import Checkpoint, FrameworkSpec
 from labcli.runs import checkpoints, config, rundir
 from labcli.runs.video import VideoSettings
 

@@ -11,7 +11,6 @@ from labcli.errors import LabError
 from labcli.runs import rundir
 
 DEFAULT_METRIC = metrics.MEAN_RETURN
-DEFAULT_OUTPUT = Path("plot.png")
 
 
 def read_scalars(run_dir: Path) -> dict[str, list[tuple[int, float]]]:
@@ -48,8 +47,8 @@ class PlotResult:
     skipped: list[rundir.Run] = field(default_factory=list)  # runs that never logged the metric
 
 
-def plot(selected: Sequence[rundir.Run], metric: str = DEFAULT_METRIC,
-         output: Path = DEFAULT_OUTPUT) -> PlotResult:
+def plot(selected: Sequence[rundir.Run], output: Path,
+         metric: str = DEFAULT_METRIC) -> PlotResult:
     """One curve per run of `metric` against env steps, saved as a PNG (Agg, no display)."""
     if output.suffix.lower() != ".png":
         raise LabError(f"-o {output}: lab writes PNG images", "name a file ending in .png")

@@ -20,12 +20,13 @@ from torch.utils.tensorboard import SummaryWriter
 
 from labcli import __version__
 from labcli.envs import metrics, mjwarnings, wrappers
+from labcli.envs.config import TaskConfig
 from labcli.envs.make import make_env
 from labcli.envs.sim import WARP_INSTALL_HINT, default_backend
-from labcli.envs.spec import TaskConfig
 from labcli.errors import LabError, TrainingDiverged
 from labcli.plugins import registry
-from labcli.plugins.framework import AgentConfig, Checkpoint, Framework
+from labcli.plugins.config import AgentConfig
+from labcli.plugins.framework import Checkpoint, Framework
 from labcli.runs import config, interrupt, rundir, snapshot
 from labcli.runs import video as videos
 from labcli.runs.context import RunContext

@@ -7,7 +7,7 @@ from typing import Literal
 
 from pydantic import Field
 
-from labcli.plugins.framework import AgentConfig
+from labcli.plugins.config import AgentConfig
 
 
 class RslRlPpoConfig(AgentConfig):

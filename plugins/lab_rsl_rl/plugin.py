@@ -1,7 +1,6 @@
 """Registers RSL-RL through the same hook a third-party framework plugin would use. Its classes
 are named, not imported: rsl-rl-lib and torch load only when a command trains or plays."""
 
-from lab_rsl_rl.config import RslRlPpoConfig
 from labcli.envs.wrappers import Stage, WrapperSpec
 from labcli.plugins.framework import FrameworkSpec
 from labcli.plugins.hookspecs import hookimpl
@@ -11,7 +10,8 @@ ADAPTER = WrapperSpec(
     description="torch VectorEnv → RSL-RL VecEnv (TensorDict), time-outs flagged")
 
 SPEC = FrameworkSpec(
-    name="rsl_rl", framework="lab_rsl_rl.framework:RslRlFramework", agent_config=RslRlPpoConfig,
+    name="rsl_rl", framework="lab_rsl_rl.framework:RslRlFramework",
+    agent_config="lab_rsl_rl.config:RslRlPpoConfig",
     wrappers=(ADAPTER,),
     description="RSL-RL PPO (torch end to end; empirical observation normalization)")
 

@@ -6,7 +6,7 @@ from typing import Literal
 
 from pydantic import Field
 
-from labcli.plugins.framework import AgentConfig
+from labcli.plugins.config import AgentConfig
 
 
 class Sb3PPOConfig(AgentConfig):

@@ -1,7 +1,6 @@
 """Registers SB3 through the same hook a third-party framework plugin would use. Its classes are
 named, not imported: stable-baselines3 and torch load only when a command trains or plays."""
 
-from lab_sb3.config import Sb3PPOConfig
 from labcli.envs.wrappers import Stage, WrapperSpec
 from labcli.plugins.framework import FrameworkSpec
 from labcli.plugins.hookspecs import hookimpl
@@ -13,7 +12,8 @@ VEC_NORMALIZE = WrapperSpec(
     framework="sb3", description="SB3's running observation/reward normalization")
 
 SPEC = FrameworkSpec(
-    name="sb3", framework="lab_sb3.framework:Sb3Framework", agent_config=Sb3PPOConfig,
+    name="sb3", framework="lab_sb3.framework:Sb3Framework",
+    agent_config="lab_sb3.config:Sb3PPOConfig",
     wrappers=(ADAPTER, VEC_NORMALIZE), checkpoint_suffix=".zip",
     description="Stable-Baselines3 PPO (numpy VecEnv; VecNormalize optional)")
 

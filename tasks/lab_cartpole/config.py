@@ -1,15 +1,12 @@
-"""Cartpole's settings, as `--set env.KEY=VALUE` sets them, and its model."""
+"""Cartpole's settings, as `--set env.KEY=VALUE` sets them."""
 
 from __future__ import annotations
 
 import math
-from pathlib import Path
 
 from pydantic import Field
 
-from labcli.envs.spec import TaskConfig
-
-MODEL = Path(__file__).with_name("cartpole.xml")
+from labcli.envs.config import TaskConfig
 
 
 class CartpoleConfig(TaskConfig):

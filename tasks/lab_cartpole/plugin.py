@@ -1,9 +1,12 @@
 """Registers the built-in tasks through the same hook a third-party package would use. The task's
 code is named, not imported: torch loads only when an env is built."""
 
-from lab_cartpole.config import MODEL, CartpoleConfig
+from pathlib import Path
+
 from labcli.envs.spec import TaskSpec
 from labcli.plugins.hookspecs import hookimpl
+
+MODEL = Path(__file__).with_name("cartpole.xml")
 
 
 @hookimpl
@@ -11,7 +14,7 @@ def register_tasks(register):
     register(TaskSpec(
         name="cartpole",
         task="lab_cartpole.cartpole:Cartpole",
-        config=CartpoleConfig,
+        config="lab_cartpole.config:CartpoleConfig",
         model=MODEL,
         description="push a cart to swing its pole upright from up to ±45° and balance it",
         success="pole within 0.2 rad of upright and cart in bounds at the 5 s time-out",

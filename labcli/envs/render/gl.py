@@ -56,7 +56,7 @@ def loads(backend: str) -> str | None:
     and found through LD_LIBRARY_PATH."""
     for group in LIBRARIES.get(backend, ()):
         if not any(_loads(name) for name in group):
-            return f"lib{group[0]}.so cannot be loaded"
+            return f"no lib{group[0]}.so loads"
     return None
 
 

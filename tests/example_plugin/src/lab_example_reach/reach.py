@@ -6,8 +6,8 @@ from __future__ import annotations
 import torch
 from pydantic import Field
 
+from labcli.envs.config import TaskConfig
 from labcli.envs.sim import Sim
-from labcli.envs.spec import TaskConfig
 from labcli.envs.task import Task
 
 

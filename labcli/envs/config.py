@@ -1,0 +1,43 @@
+"""The env configs: `TaskConfig`, which every task's config subclasses, and `GymConfig`, the
+config of `gym:<id>` tasks. pydantic models, kept apart from the specs that name them so that
+loading plugins imports no pydantic."""
+
+from __future__ import annotations
+
+from typing import Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+
+class TaskConfig(BaseModel):
+    """Settings every task has; a task subclasses it to add its own (reset ranges, bounds...)."""
+
+    # NaN and inf are never meant: they would only surface later as a diverged run.
+    model_config = ConfigDict(extra="forbid", validate_assignment=True, allow_inf_nan=False)
+
+    # The upper bounds are far beyond any use; past them a typo would exhaust memory or overflow
+    # the step count instead of failing at once.
+    num_envs: int = Field(64, gt=0, le=2**20, description="parallel environments")
+    episode_length_s: float = Field(5.0, gt=0, le=1e6, description="time-out, in seconds")
+    decimation: int = Field(2, gt=0, le=1000, description="physics steps per env step")
+    sim_dt: float | None = Field(None, gt=0, description="physics step; None keeps the MJCF's")
+    action_scale: float = Field(1.0, description="policy action in [-1, 1] times this is ctrl")
+    reward_weights: dict[str, float] = Field(default_factory=dict)
+    threads: int | None = Field(None, gt=0, le=4096, description="cpu backend: threads that "
+                                "step the physics (None: the cores this process may use)")
+    cuda_graph: bool = Field(True, description="on a GPU, replay each env step as one CUDA graph "
+                             "(false: step eagerly, for debugging a task)")
+
+
+class GymConfig(BaseModel):
+    """The env settings of a gymnasium task (`--set env.KEY=VALUE`)."""
+
+    model_config = ConfigDict(extra="forbid", validate_assignment=True)
+
+    num_envs: int = Field(16, gt=0, description="parallel environments (rl_zoo3's 16)")
+    vectorization: Literal["sync", "async"] = Field(
+        "sync", description="gymnasium's SyncVectorEnv (one process) or AsyncVectorEnv")
+    max_episode_steps: int | None = Field(
+        None, gt=0, description="time-out in steps; None keeps the id's registered one")
+    kwargs: dict[str, Any] = Field(default_factory=dict,
+                                   description="keyword arguments of gymnasium.make")
