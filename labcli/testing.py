@@ -88,6 +88,14 @@ def make_env(num_envs: int = NUM_ENVS, **cfg: Any) -> LabVecEnv:
     return LabVecEnv(spec, spec.config_class(num_envs=num_envs, **cfg))
 
 
+def load_policy(name: str, checkpoint: Path, env: Any) -> Policy:
+    """Framework `name`'s Policy from `checkpoint`, with the agent config of its run dir, as
+    `lab play` loads it."""
+    spec = registry.get_framework(name)
+    cfg = checkpoints.agent_config(spec, rundir.open_run(checkpoint.parent))
+    return spec.load().load_policy(checkpoint, env, cfg)
+
+
 def check_adapter(name: str, probe: Probe | None = None) -> None:
     """The framework registers its adapter, its default pipeline validates and wraps a LabVecEnv;
     with a `probe`, zero actions through the adapter give `[num_envs]` batches, and time-outs
@@ -216,7 +224,7 @@ def check_policy_roundtrip(name: str, tmp_path: Path, overrides: Sequence[str] =
     for num_envs in (NUM_ENVS, 16):  # the policy must not depend on the env's batch size
         env = make_env(num_envs)
         try:
-            policy = fw.load().load_policy(checkpoint, env)
+            policy = load_policy(name, checkpoint, env)
         finally:
             env.close()
         assert isinstance(policy, Policy), f"{name}: load_policy returned {type(policy).__name__}"
@@ -244,7 +252,7 @@ def check_policy_roundtrip(name: str, tmp_path: Path, overrides: Sequence[str] =
 def _actions(name: str, checkpoint: Path, obs: torch.Tensor) -> torch.Tensor:
     env = make_env()
     try:
-        policy = registry.get_framework(name).load().load_policy(checkpoint, env)
+        policy = load_policy(name, checkpoint, env)
     finally:
         env.close()
     with torch.no_grad():
@@ -344,7 +352,7 @@ def check_export(name: str, tmp_path: Path, overrides: Sequence[str] = ()) -> fl
 
     env = make_env()
     try:
-        policy = fw.load().load_policy(fw.checkpoints(outcome.run.dir)[-1].path, env)
+        policy = load_policy(name, fw.checkpoints(outcome.run.dir)[-1].path, env)
     finally:
         env.close()
     obs = _observations()

@@ -5,6 +5,7 @@ input gives a traceback."""
 from __future__ import annotations
 
 import dataclasses
+import json
 import os
 import shutil
 import subprocess
@@ -37,6 +38,19 @@ def lab(*args: str, logs: Path):
     return CliRunner().invoke(app, list(args), env={"LAB_LOGS_DIR": str(logs), "COLUMNS": "300"})
 
 
+
+
+def copy_checkpoint(source: Path, iteration: int, target: Path, as_iteration: int) -> None:
+    """Checkpoint `iteration` of run `source` into run `target` as `as_iteration`, with its
+    manifest: a whole checkpoint, as copying a run's files by hand would make one."""
+    manifest = json.loads((source / f"checkpoint_{iteration}.json").read_text())
+    renamed = {}
+    for name, entry in manifest["files"].items():
+        new = name.replace(f"_{iteration}.", f"_{as_iteration}.")
+        (target / new).write_bytes((source / name).read_bytes())
+        renamed[new] = entry
+    manifest.update(iteration=as_iteration, files=renamed)
+    (target / f"checkpoint_{as_iteration}.json").write_text(json.dumps(manifest))
 
 
 def snapshot_of(root: Path) -> dict[Path, int]:
@@ -109,9 +123,8 @@ def test_a_checkpoint_of_another_task_or_size_names_the_mismatch(register_plugin
     result = lab("train", "--task", "cartpole", "--framework", "sb3", "--checkpoint",
                  str(short / "model_1.zip"), "--max-iterations", "2", logs=logs)
     assert_one_line_error(result, "sb3 run of 'cartpole_short', not a sb3 run of 'cartpole'")
-    # The same file copied into a cartpole run: the sizes tell.
-    for name in ("model_1.zip", "vecnormalize_1.pkl"):
-        (full / name.replace("_1", "_7")).write_bytes((short / name).read_bytes())
+    # The same checkpoint copied into a cartpole run, whole: the sizes tell.
+    copy_checkpoint(short, 1, full, 7)
     before = snapshot_of(logs)
     for args in (["play", "--run", str(full)],
                  ["train", "--task", "cartpole", "--framework", "sb3", "--checkpoint",

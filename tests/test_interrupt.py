@@ -71,7 +71,7 @@ def assert_interrupted_with_a_loadable_checkpoint(run_dir: Path) -> dict:
     assert summary["steps"] == summary["iterations"] * 4 * 8  # 4 envs x 8 steps
     env = testing.make_env()
     try:
-        fw.load().load_policy(checkpoint, env)
+        testing.load_policy("sb3", checkpoint, env)
     finally:
         env.close()
     assert not list(run_dir.glob(".tmp_*"))
@@ -182,7 +182,8 @@ KILLED_MID_SAVE = textwrap.dedent("""
 
     original = PPO.save
     def slow_save(self, path, *args, **kwargs):
-        if Path(path).name == ".tmp_model_2.zip":
+        path = Path(path)  # the checkpoint's staging dir in the run dir (not the candidate's)
+        if path.name == "model_2.zip" and path.parent.parent.name != ".candidate":
             Path(path).write_bytes(b"PK half a checkpoint")
             print("writing", flush=True)
             time.sleep(60)
@@ -206,8 +207,8 @@ def test_sigkill_while_a_checkpoint_is_written_leaves_the_previous_one(tmp_path)
         proc.kill()
     (run_dir,) = run_dirs(logs)
     fw = registry.get_framework("sb3")
-    assert not fw.checkpoint_path(run_dir, 2).exists()  # only its temporary file was written
-    assert list(run_dir.glob(".tmp_model_2.zip"))
+    assert not fw.checkpoint_path(run_dir, 2).exists()  # only its staging dir was written
+    assert list(run_dir.glob(".tmp_checkpoint_2.*/model_2.zip"))
     run, found = checkpoints.find(checkpoints.LATEST, logs, "cartpole", fw)
     assert run.dir == run_dir and found.iteration == 1
     assert rundir.run_state(run) == rundir.FAILED  # recorded as running, its process is gone
@@ -215,6 +216,7 @@ def test_sigkill_while_a_checkpoint_is_written_leaves_the_previous_one(tmp_path)
                                                    "agent.n_epochs=1"],
                                   checkpoint=checkpoints.LATEST)
     assert resumed.summary["state"] == rundir.FINISHED and resumed.summary["iterations"] == 2
+    assert not list(run_dir.glob(".tmp_*"))  # the killed run's staging dir is gone
 
 
 def test_latest_passes_over_stray_and_truncated_checkpoints(tmp_path):

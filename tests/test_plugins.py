@@ -20,6 +20,7 @@ import yaml
 from rich.console import Console
 from typer.testing import CliRunner
 
+from labcli import testing
 from labcli.commands import app as cli
 from labcli.envs import metrics
 from labcli.envs.env import LabVecEnv
@@ -182,10 +183,9 @@ def test_example_trains_with_sb3(example, tmp_path, monkeypatch):
     agent_params = yaml.safe_load((run_dir / rundir.AGENT_PARAMS).read_text())
     assert env_params["target_radius"] == 0.1  # the plugin's own config
     assert agent_params["gamma"] == 0.98  # the plugin's defaults for sb3
-    policy = registry.get_framework("sb3").load().load_policy(
-        run_dir / "model_2.zip", LabVecEnv(registry.get_task(EXAMPLE_TASK),
-                                           registry.get_task(EXAMPLE_TASK).config_class(num_envs=1),
-                                           backend="cpu"))
+    spec = registry.get_task(EXAMPLE_TASK)
+    policy = testing.load_policy("sb3", run_dir / "model_2.zip",
+                                 LabVecEnv(spec, spec.config_class(num_envs=1), backend="cpu"))
     assert policy(torch.zeros(3, 6)).shape == (3, 2)
 
 

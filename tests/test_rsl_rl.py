@@ -117,7 +117,7 @@ def test_training_keeps_rsl_rl_quiet(tmp_path, capfd):
 
 def test_policy_includes_the_trained_normalizer(trained):
     checkpoint = trained.run.dir / "model_3.pt"
-    policy = RslRlFramework(SPEC).load_policy(checkpoint, make_env())
+    policy = testing.load_policy("rsl_rl", checkpoint, make_env())
     assert isinstance(policy.normalizer, ObsNormalizer)
 
     # The actor as RSL-RL itself builds and runs it, normalizer inside.
@@ -142,7 +142,7 @@ def test_policy_includes_the_trained_normalizer(trained):
 
 def test_policy_without_normalization(tmp_path):
     outcome = train(tmp_path, 1, ["agent.empirical_normalization=false"])
-    policy = RslRlFramework(SPEC).load_policy(outcome.run.dir / "model_1.pt", make_env())
+    policy = testing.load_policy("rsl_rl", outcome.run.dir / "model_1.pt", make_env())
     assert isinstance(policy.normalizer, torch.nn.Identity)
 
 
@@ -189,7 +189,7 @@ def test_stop_mid_rollout_leaves_a_loadable_checkpoint(tmp_path, monkeypatch):
     assert calls == STEPS + 3  # stopped at once, not at the end of the rollout
     checkpoint = outcome.run.dir / "model_1.pt"
     assert checkpoint.is_file() and not (outcome.run.dir / "model_2.pt").exists()
-    RslRlFramework(SPEC).load_policy(checkpoint, make_env())
+    testing.load_policy("rsl_rl", checkpoint, make_env())
 
 
 def test_mismatched_sizes_raise_lab_error(trained):
@@ -198,7 +198,7 @@ def test_mismatched_sizes_raise_lab_error(trained):
         single_action_space=gym.spaces.Box(-1.0, 1.0, (1,), np.float32),
         task_spec=SimpleNamespace(name="other"))
     with pytest.raises(LabError) as err:
-        RslRlFramework(SPEC).load_policy(trained.run.dir / "model_3.pt", other)
+        testing.load_policy("rsl_rl", trained.run.dir / "model_3.pt", other)
     assert "observation size 4" in str(err.value) and "has 5" in str(err.value)
     assert "\n" not in str(err.value)
 
@@ -218,7 +218,7 @@ def test_unreadable_checkpoints_raise_lab_error(tmp_path, trained, content):
     elif content is not None:
         path.write_bytes(content)
     with pytest.raises(LabError) as err:
-        RslRlFramework(SPEC).load_policy(path, make_env())
+        RslRlFramework(SPEC).load_policy(path, make_env(), SPEC.agent_config_class())
     assert "model_7.pt" in str(err.value) and "\n" not in str(err.value)
 
 

@@ -5,7 +5,6 @@ from __future__ import annotations
 import io
 import json
 import os
-import pickle
 import signal
 from pathlib import Path
 
@@ -13,7 +12,7 @@ import numpy as np
 import pytest
 import torch
 from lab_sb3.adapter import Sb3VecEnv
-from lab_sb3.framework import Sb3Framework
+from lab_sb3.framework import Sb3Framework, normalizer_path, read_normalizer
 from lab_sb3.plugin import SPEC
 from rich.console import Console
 from stable_baselines3 import PPO
@@ -73,8 +72,8 @@ def test_adapter_marks_terminations_as_not_truncated():
 def test_training_writes_run_dir_checkpoints_normalizer_and_tensorboard(trained):
     run_dir = trained.run.dir
     assert sorted(p.name for p in run_dir.glob("model_*.zip")) == ["model_2.zip", "model_3.zip"]
-    assert sorted(p.name for p in run_dir.glob("vecnormalize_*.pkl")) == [
-        "vecnormalize_2.pkl", "vecnormalize_3.pkl"]
+    assert sorted(p.name for p in run_dir.glob("vecnormalize_*")) == [
+        "vecnormalize_2.json", "vecnormalize_3.json"]
     assert not list(run_dir.glob(".tmp_*"))
     for name in (rundir.ENV_PARAMS, rundir.AGENT_PARAMS, rundir.COMMAND, rundir.MANIFEST):
         assert (run_dir / name).is_file()
@@ -87,11 +86,14 @@ def test_training_writes_run_dir_checkpoints_normalizer_and_tensorboard(trained)
 
 def test_policy_includes_the_saved_normalizer(trained):
     checkpoint = trained.run.dir / "model_3.zip"
-    policy = Sb3Framework(SPEC).load_policy(checkpoint, make_env())
+    policy = testing.load_policy("sb3", checkpoint, make_env())
     assert isinstance(policy.normalizer, ObsNormalizer)
+    # SB3's own loader (trusted here: this test wrote the file) agrees with lab's.
     model = PPO.load(checkpoint, device="cpu")
-    vecnorm = Sb3Framework.normalizer_path(checkpoint)
-    norm = VecNormalize.load(str(vecnorm), Sb3VecEnv(make_env()))
+    saved = read_normalizer(normalizer_path(checkpoint))
+    norm = VecNormalize(Sb3VecEnv(make_env()), clip_obs=saved["clip_obs"],
+                        epsilon=saved["epsilon"])
+    norm.obs_rms = saved["obs_rms"]
     obs = np.random.default_rng(0).normal(size=(64, 4)).astype(np.float32) * [1, 1, 3, 10]
     expected, _ = model.predict(norm.normalize_obs(obs), deterministic=True)
     with torch.no_grad():
@@ -102,7 +104,7 @@ def test_policy_includes_the_saved_normalizer(trained):
 def test_policy_without_normalization(tmp_path):
     outcome = train(tmp_path, 1, ["agent.normalize_obs=false"])
     assert not list(outcome.run.dir.glob("vecnormalize_*"))
-    policy = Sb3Framework(SPEC).load_policy(outcome.run.dir / "model_1.zip", make_env())
+    policy = testing.load_policy("sb3", outcome.run.dir / "model_1.zip", make_env())
     assert isinstance(policy.normalizer, torch.nn.Identity)
 
 
@@ -112,7 +114,7 @@ def test_resume_continues_iterations_steps_and_normalizer(tmp_path):
     assert second.run.dir == first.run.dir
     assert second.summary["iterations"] == 4 and second.summary["steps"] == 4 * PER_ITERATION
     assert PPO.load(first.run.dir / "model_4.zip").num_timesteps == 4 * PER_ITERATION
-    counts = [pickle.loads((first.run.dir / f"vecnormalize_{i}.pkl").read_bytes()).obs_rms.count
+    counts = [read_normalizer(first.run.dir / f"vecnormalize_{i}.json")["obs_rms"].count
               for i in (2, 4)]
     assert counts[1] > counts[0] + PER_ITERATION  # the resumed normalizer kept its statistics
 
@@ -133,7 +135,7 @@ def test_stop_mid_rollout_leaves_a_loadable_checkpoint(tmp_path, monkeypatch):
     assert outcome.summary["state"] == "interrupted"
     checkpoints = sorted(outcome.run.dir.glob("model_*.zip"))
     assert checkpoints, "an interrupted run keeps a checkpoint"
-    Sb3Framework(SPEC).load_policy(checkpoints[-1], make_env())
+    testing.load_policy("sb3", checkpoints[-1], make_env())
     assert json.loads((outcome.run.dir / rundir.MANIFEST).read_text())["state"] == "interrupted"
 
 
@@ -142,7 +144,7 @@ def test_corrupt_checkpoints_raise_lab_error(tmp_path, content):
     path = tmp_path / "model_7.zip"
     path.write_bytes(content)
     with pytest.raises(LabError) as err:
-        Sb3Framework(SPEC).load_policy(path, make_env())
+        Sb3Framework(SPEC).load_policy(path, make_env(), SPEC.agent_config_class())
     assert "model_7.zip" in str(err.value) and "\n" not in str(err.value)
 
 

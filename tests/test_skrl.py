@@ -145,7 +145,7 @@ def test_training_keeps_skrl_quiet(tmp_path, capfd):
 def test_policy_includes_the_trained_normalizer(trained):
     checkpoint = trained.run.dir / "model_3.pt"
     env = make_env()
-    policy = SkrlFramework(SPEC).load_policy(checkpoint, env)
+    policy = testing.load_policy("skrl", checkpoint, env)
     assert isinstance(policy.normalizer, ObsNormalizer)
 
     saved = torch.load(checkpoint, weights_only=True)
@@ -165,7 +165,7 @@ def test_policy_includes_the_trained_normalizer(trained):
 
 def test_policy_without_normalization(tmp_path):
     outcome = train(tmp_path, 1, ["agent.normalize_obs=false"])
-    policy = SkrlFramework(SPEC).load_policy(outcome.run.dir / "model_1.pt", make_env())
+    policy = testing.load_policy("skrl", outcome.run.dir / "model_1.pt", make_env())
     assert isinstance(policy.normalizer, torch.nn.Identity)
 
 
@@ -202,7 +202,7 @@ def test_stop_mid_rollout_leaves_a_loadable_checkpoint(tmp_path, monkeypatch):
     assert calls == ROLLOUTS + 3  # stopped at once, not at the end of the rollout
     checkpoint = outcome.run.dir / "model_1.pt"
     assert checkpoint.is_file()
-    SkrlFramework(SPEC).load_policy(checkpoint, make_env())
+    testing.load_policy("skrl", checkpoint, make_env())
 
 
 def test_mismatched_sizes_raise_lab_error(trained):
@@ -211,7 +211,7 @@ def test_mismatched_sizes_raise_lab_error(trained):
         single_action_space=gym.spaces.Box(-1.0, 1.0, (1,), np.float32),
         task_spec=SimpleNamespace(name="other"))
     with pytest.raises(LabError) as err:
-        SkrlFramework(SPEC).load_policy(trained.run.dir / "model_3.pt", other)
+        testing.load_policy("skrl", trained.run.dir / "model_3.pt", other)
     assert "observation size 4" in str(err.value) and "has 5" in str(err.value)
     assert "\n" not in str(err.value)
 
@@ -224,7 +224,7 @@ def test_unreadable_checkpoints_raise_lab_error(tmp_path, content):
     elif content is not None:
         path.write_bytes(content)
     with pytest.raises(LabError) as err:
-        SkrlFramework(SPEC).load_policy(path, make_env())
+        SkrlFramework(SPEC).load_policy(path, make_env(), SPEC.agent_config_class())
     assert "model_7.pt" in str(err.value) and "\n" not in str(err.value)
 
 

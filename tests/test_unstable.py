@@ -29,7 +29,7 @@ EXPLODING = "env.action_scale=1e9"
 def finite_policy(name: str, checkpoint: Path) -> bool:
     env = testing.make_env()
     try:
-        policy = registry.get_framework(name).load().load_policy(checkpoint, env)
+        policy = testing.load_policy(name, checkpoint, env)
     finally:
         env.close()
     return all(torch.isfinite(t).all() for t in [*policy.parameters(), *policy.buffers()])
@@ -148,7 +148,7 @@ def test_nan_actions_from_finite_weights_stop_training(tmp_path, monkeypatch):
     assert "The last good checkpoint is model_1.zip." in str(err.value)
     (run_dir,) = {p.parent for p in tmp_path.glob("sb3/cartpole/*/run.json")}
     assert [c.iteration for c in registry.get_framework("sb3").checkpoints(run_dir)] == [1]
-    assert (run_dir / "vecnormalize_1.pkl").is_file()
+    assert (run_dir / "vecnormalize_1.json").is_file()
 
 
 def test_a_diverging_cli_run_is_one_line_and_exit_code_3(tmp_path):

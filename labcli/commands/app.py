@@ -13,7 +13,8 @@ import typer
 from labcli import __version__
 from labcli.commands import bench, config, export, info, listing, play, plot, runs, train
 from labcli.commands.common import err
-from labcli.errors import LabError
+from labcli.errors import Interrupted, LabError
+from labcli.runs import interrupt
 
 SUMMARY = "Train, play and export RL policies for MuJoCo robots with SB3, RSL-RL or skrl."
 
@@ -26,13 +27,21 @@ config_app = typer.Typer(
 app.add_typer(config_app, name="config")
 
 
-def one_line_errors(fn: Callable) -> Callable:
-    """A LabError becomes one line on stderr and the error's exit code (2 for bad input)."""
+def one_line_errors(fn: Callable, *, saves: bool = False) -> Callable:
+    """A LabError becomes one line on stderr and the error's exit code (2 for bad input). A
+    signal from now on ends the command at once, one line, 130/143; a command that `saves`
+    (training) keeps it recorded, and stops at its next step with a checkpoint."""
 
     @functools.wraps(fn)
     def run(*args: Any, **kwargs: Any) -> Any:
         try:
-            return fn(*args, **kwargs)
+            if interrupt.startup.requested:
+                raise Interrupted(f"interrupted by {interrupt.startup.name} during start-up; "
+                                  "nothing was written", interrupt.startup.exit_code)
+            if saves:
+                return fn(*args, **kwargs)
+            with interrupt.immediate():
+                return fn(*args, **kwargs)
         except LabError as exc:
             from rich.text import Text
 
@@ -46,7 +55,7 @@ def one_line_errors(fn: Callable) -> Callable:
 for name, command in (("list", listing.list_), ("train", train.train), ("play", play.play),
                       ("export", export.export), ("bench", bench.bench), ("runs", runs.runs),
                       ("plot", plot.plot), ("info", info.info)):
-    app.command(name)(one_line_errors(command))
+    app.command(name)(one_line_errors(command, saves=command is train.train))
 config_app.command("show")(one_line_errors(config.show))
 
 

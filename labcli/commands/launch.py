@@ -1,7 +1,7 @@
-"""The `lab` console script. It catches SIGINT/SIGTERM before importing the CLI: a signal while
-the commands are imported ends `lab` with one line and exit code 130/143 instead of a traceback
-from inside an import. (torch and the learning libraries are imported later, by the commands that
-need them, under their own handling.)"""
+"""The `lab` console script. SIGINT/SIGTERM are recorded from its first line until a command
+starts (labcli/runs/interrupt.py): a signal while `lab` imports and parses ends it with one line
+and exit code 130/143 instead of a traceback from inside an import. Each command then handles
+signals its own way (labcli/commands/app.py)."""
 
 from __future__ import annotations
 
@@ -16,11 +16,11 @@ def _interrupted(stop: interrupt.StopRequest) -> None:
 
 
 def main() -> None:
-    with interrupt.deferred() as stop:
+    with interrupt.deferred(interrupt.startup) as stop:
         try:
             from labcli.commands.app import main as cli_main
         except KeyboardInterrupt:  # a second signal while importing
             _interrupted(stop)
-    if stop.requested:
-        _interrupted(stop)
-    cli_main()
+        if stop.requested:
+            _interrupted(stop)
+        cli_main()

@@ -104,9 +104,11 @@ class Framework:
         then call `ctx.restore_rng()` right before the first rollout."""
         raise NotImplementedError
 
-    def load_policy(self, checkpoint: Path, env: Any) -> Any:
+    def load_policy(self, checkpoint: Path, env: Any, cfg: Any) -> Any:
         """Load `checkpoint` as a `labcli.plugins.policy.Policy` for `env`'s observation and
-        action spaces."""
+        action spaces. `cfg` is the agent config the run trained with (its params/agent.yaml):
+        what rebuilds the networks where a checkpoint holds only their tensors. A checkpoint is
+        data: load tensors with `torch.load(weights_only=True)`, never unpickle objects."""
         raise NotImplementedError
 
 

@@ -1,23 +1,148 @@
-"""Which checkpoint a command means: `latest`, a file, or a run dir's newest complete one. A
-checkpoint is complete when it reads back whole: a truncated or damaged file (copied half-way,
-written by an older lab without renames) is passed over."""
+"""Checkpoints as sets of files, written whole or not at all, and which one a command means.
+
+A checkpoint of iteration N is the framework's model file (`model_N.zip`, `model_N.pt`...), the
+companions the framework writes beside it (SB3's `vecnormalize_N.json`), and lab's
+`state_N.pt`. It is staged in a fresh private directory, checked, fsynced, renamed into place
+file by file, and only then is its manifest `checkpoint_N.json` (every file's size and sha256)
+written: a checkpoint is complete when its manifest is there and every file matches it, so a kill,
+a full disk, a copy cut short or a damaged file can never make `latest` pick half a checkpoint.
+Runs written before manifests existed are judged by their zip checksums."""
 
 from __future__ import annotations
 
+import hashlib
+import json
+import tempfile
 import zipfile
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
+from labcli import files
 from labcli.errors import LabError
 from labcli.plugins.framework import Checkpoint, FrameworkSpec
-from labcli.runs import rundir
+from labcli.runs import config, rundir
 
 LATEST = "latest"
+MANIFEST_PREFIX = "checkpoint_"
 # SB3's .zip and torch.save's .pt are zip containers, whose checksums tell a damaged file.
 ZIP_SUFFIXES = (".zip", ".pt", ".pth")
+MAX_MANIFEST_BYTES = 1 << 20
 
 
-def complete(path: Path) -> bool:
-    """Whether `path` reads back whole; files of other formats are taken as they are."""
+def manifest_path(directory: Path, iteration: int) -> Path:
+    return directory / f"{MANIFEST_PREFIX}{iteration}.json"
+
+
+def write(directory: Path, fw: FrameworkSpec, iteration: int, save: Callable[[Path], None],
+          extra: Callable[[Path], None] | None = None,
+          check: Callable[[Path], None] | None = None) -> Checkpoint:
+    """Checkpoint `iteration` into `directory`: `save(path)` writes the framework's model at
+    `path` (its final name, in a private staging directory) and any companions beside it;
+    `extra(staging_dir)` adds lab's own files (the env state); `check(path)` may refuse the
+    staged model by raising; then the set is published. Nothing is left behind when any of it
+    fails."""
+    directory = files.real_dir(directory)
+    try:
+        staging = Path(tempfile.mkdtemp(prefix=f".tmp_checkpoint_{iteration}.", dir=directory))
+    except OSError as exc:
+        raise files.unwritable(directory, exc) from exc
+    try:
+        model = fw.checkpoint_path(staging, iteration)
+        try:
+            save(model)
+            if extra is not None:
+                extra(staging)
+        except OSError as exc:
+            raise files.unwritable(fw.checkpoint_path(directory, iteration), exc) from exc
+        if not model.is_file():
+            raise RuntimeError(f"framework '{fw.name}' did not write its checkpoint at {model}")
+        if check is not None:
+            check(model)
+        _publish(staging, directory, iteration, fw.name)
+    finally:
+        files.remove(staging)
+    return Checkpoint(fw.checkpoint_path(directory, iteration), iteration)
+
+
+def discard_staging(directory: Path) -> None:
+    """Remove what a killed writer left staged in `directory`: never a checkpoint, only parts."""
+    for path in directory.glob(f".tmp_{MANIFEST_PREFIX}*"):
+        files.remove(path)
+
+
+def _publish(staging: Path, directory: Path, iteration: int, framework: str) -> None:
+    entries = {}
+    for path in sorted(staging.iterdir()):
+        if path.is_symlink() or not path.is_file():
+            raise RuntimeError(f"a checkpoint holds only files, not {path.name}")
+        files.fsync_file(path)
+        entries[path.name] = {"bytes": path.stat().st_size, "sha256": _sha256(path)}
+    try:
+        for name in entries:
+            (staging / name).chmod(files.FILE_MODE)
+            (staging / name).replace(directory / name)
+    except OSError as exc:
+        raise files.unwritable(directory, exc) from exc
+    manifest = {"iteration": iteration, "framework": framework, "files": entries}
+    files.write_atomic(manifest_path(directory, iteration), json.dumps(manifest, indent=2) + "\n")
+
+
+def move(source: Path, target: Path, iteration: int) -> None:
+    """Move the complete checkpoint `iteration` of `source` into `target`, manifest last."""
+    manifest = _read_manifest(manifest_path(source, iteration))
+    try:
+        for name in manifest["files"]:
+            (source / name).replace(target / name)
+    except OSError as exc:
+        raise files.unwritable(target, exc) from exc
+    manifest_path(source, iteration).replace(manifest_path(target, iteration))
+    files.fsync_dir(target)
+
+
+def _sha256(path: Path) -> str:
+    digest = hashlib.sha256()
+    with path.open("rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def _read_manifest(path: Path) -> dict[str, Any]:
+    """The manifest at `path`, or a ValueError saying why it is not one."""
+    if path.is_symlink() or not path.is_file():
+        raise ValueError("no manifest")
+    if path.stat().st_size > MAX_MANIFEST_BYTES:
+        raise ValueError("manifest too large")
+    data = json.loads(path.read_bytes())
+    entries = data.get("files") if isinstance(data, dict) else None
+    if not isinstance(entries, dict) or not all(
+            isinstance(e, dict) and isinstance(e.get("bytes"), int)
+            and isinstance(e.get("sha256"), str) for e in entries.values()):
+        raise ValueError("malformed manifest")
+    return data
+
+
+def complete(fw: FrameworkSpec, checkpoint: Checkpoint) -> bool:
+    """Whether `checkpoint` reads back whole: its manifest's files all there, as written."""
+    directory = checkpoint.path.parent
+    try:
+        manifest = _read_manifest(manifest_path(directory, checkpoint.iteration))
+    except (OSError, ValueError, UnicodeDecodeError):
+        if any(directory.glob(f"{MANIFEST_PREFIX}*.json")):
+            return False  # a run with manifests: one without is half-written
+        return _legacy_complete(checkpoint.path)
+    if checkpoint.path.name not in manifest["files"]:
+        return False
+    for name, entry in manifest["files"].items():
+        path = directory / name
+        if (path.is_symlink() or not path.is_file() or path.stat().st_size != entry["bytes"]
+                or _sha256(path) != entry["sha256"]):
+            return False
+    return True
+
+
+def _legacy_complete(path: Path) -> bool:
     try:
         with zipfile.ZipFile(path) as archive:
             return archive.testzip() is None
@@ -28,7 +153,7 @@ def complete(path: Path) -> bool:
 def latest_complete(fw: FrameworkSpec, run_dir: Path) -> Checkpoint | None:
     """The newest complete checkpoint in `run_dir`."""
     for found in reversed(fw.checkpoints(run_dir)):
-        if complete(found.path):
+        if complete(fw, found):
             return found
     return None
 
@@ -59,7 +184,7 @@ def find(value: str, logs_dir: Path, task: str, fw: FrameworkSpec) -> tuple[rund
     if not match:
         raise LabError(f"{path.name} is not a {fw.name} checkpoint name",
                        f"expected a name like {fw.checkpoint_path(path.parent, 100).name}")
-    if not complete(path):
+    if not complete(fw, match[0]):
         raise LabError(f"checkpoint {path} is incomplete (truncated or damaged)",
                        "pick another checkpoint, or pass the run dir for its newest complete one")
     return rundir.open_run(path.parent), match[0]
@@ -72,3 +197,10 @@ def check_run_matches(run: rundir.Run, task: str, framework: str) -> None:
             f"run {run.dir} is a {manifest.get('framework')} run of '{manifest.get('task')}', "
             f"not a {framework} run of '{task}'",
             "pass a checkpoint of the same task and framework")
+
+
+def agent_config(fw: FrameworkSpec, run: rundir.Run) -> Any:
+    """The run's agent config, as trained (params/agent.yaml): what rebuilds its networks."""
+    data = run.params(rundir.AGENT_PARAMS)
+    config.check_saved(fw.agent_config_class, "agent", run.dir / rundir.AGENT_PARAMS, data)
+    return config.build(fw.agent_config_class, "agent", [data])

@@ -5,7 +5,6 @@ a diverging run, and turns SIGINT/SIGTERM into a stop at the next env step."""
 
 from __future__ import annotations
 
-import os
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
@@ -20,7 +19,7 @@ from labcli.envs import metrics, mjwarnings
 from labcli.errors import TrainingDiverged
 from labcli.plugins.config import AgentConfig
 from labcli.plugins.framework import Checkpoint, Framework, TrainContext
-from labcli.runs import interrupt, snapshot
+from labcli.runs import checkpoints, interrupt, snapshot
 from labcli.runs.lastgood import LastGood
 from labcli.runs.progress import TrainProgress
 
@@ -64,7 +63,9 @@ class RunContext(TrainContext):
             self.steps = self.resume_state["steps"]
         self._clock = (time.perf_counter(), self.steps)
         self.last_good = LastGood(self.run_dir, self.framework.spec)
-        self.last_good.discard()  # left by a killed run: not this run's, never to be committed
+        # Left by a killed run: not this run's, never to be committed or published.
+        self.last_good.discard()
+        checkpoints.discard_staging(self.run_dir)
 
     @property
     def stop_requested(self) -> bool:
@@ -139,35 +140,33 @@ class RunContext(TrainContext):
         return count
 
     def save(self, save: Callable[[Path], None]) -> None:
-        """Through a temporary file and a rename, so that a kill mid-write leaves the previous
-        checkpoint as the latest complete one. The env and generator state goes first: a
-        checkpoint's presence implies its state's. A policy that acts with NaN is never renamed
-        into place: it stops training instead."""
+        """A complete checkpoint set of the current iteration (labcli/runs/checkpoints.py), with
+        the env and generator state of that iteration's end. A policy that acts with NaN is never
+        published: it stops training instead."""
         if self.saved_iteration == self.iteration:
             return
-        if self._boundary is not None and self._boundary["iteration"] == self.iteration:
-            snapshot.save(snapshot.path_of(self.run_dir, self.iteration), self._boundary)
-        target = self.framework.spec.checkpoint_path(self.run_dir, self.iteration)
-        tmp = target.with_name(f".tmp_{target.name}")
-        save(tmp)
-        if not self._acts_finitely(tmp):
-            tmp.unlink()
-            raise self._diverged(self.iteration, "the policy's actions are not finite (NaN or "
-                                 "inf) after this iteration's update", candidate_proven=False)
-        os.replace(tmp, target)
+        boundary = self._boundary
+        state = None
+        if boundary is not None and boundary["iteration"] == self.iteration:
+            state = snapshot.writer(self.iteration, boundary)
+        checkpoints.write(self.run_dir, self.framework.spec, self.iteration, save, state,
+                          check=self._check_acts_finitely)
         self.saved_iteration = self.iteration
 
-    def _acts_finitely(self, checkpoint: Path) -> bool:
-        # Loading builds networks, which draws random weights (SB3's load even reseeds every
+    def _check_acts_finitely(self, checkpoint: Path) -> None:
+        # Loading builds networks, which draws random weights (SB3's even reseeds every
         # generator): the run must go on with the numbers it would have drawn without the check.
         rng = snapshot.rng_state()
         try:
             # Policies load onto the CPU (portable checkpoints); the env may be on a GPU.
-            policy = self.framework.load_policy(checkpoint, self.env).to(self.env.device)
+            policy = self.framework.load_policy(checkpoint, self.env, self.cfg).to(self.env.device)
             with torch.no_grad():
-                return bool(torch.isfinite(policy(self.env.observations())).all())
+                finite = bool(torch.isfinite(policy(self.env.observations())).all())
         finally:
             snapshot.set_rng_state(rng)
+        if not finite:
+            raise self._diverged(self.iteration, "the policy's actions are not finite (NaN or "
+                                 "inf) after this iteration's update", candidate_proven=False)
 
     def _last_good(self) -> str:
         found = self.framework.spec.checkpoints(self.run_dir)

@@ -1,9 +1,13 @@
-"""SIGINT and SIGTERM as a stop request that training honours at its next step, rather than an
-exception raised wherever Python happens to be (mid-checkpoint, inside a library's update)."""
+"""SIGINT and SIGTERM, handled from the first line `lab` runs: while it starts, recorded
+(`startup`); during a command with nothing to save, the end of the process with one line and
+128 + the signal's number (`immediate`); during training, a stop request that training honours at
+its next step, rather than an exception raised wherever Python happens to be (mid-checkpoint,
+inside a library's update) (`deferred`)."""
 
 from __future__ import annotations
 
 import signal
+import sys
 import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -38,6 +42,32 @@ class StopRequest:
     @property
     def name(self) -> str:
         return signal.Signals(self.signum or signal.SIGINT).name
+
+
+# A signal that arrives while `lab` starts, before a command runs: the console script records it
+# here (labcli/commands/launch.py), and the command checks it first.
+startup = StopRequest()
+
+
+@contextmanager
+def immediate() -> Iterator[None]:
+    """Inside, SIGINT or SIGTERM ends the process at once with one line and the shell's exit
+    code: for commands that write nothing, or write atomically (a temporary file is removed on
+    the way out). Outside the main thread nothing changes."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def handler(signum: int, frame: Any) -> None:
+        print(f"interrupted by {signal.Signals(signum).name}", file=sys.stderr)
+        raise SystemExit(128 + signum)
+
+    previous = {s: signal.signal(s, handler) for s in SIGNALS}
+    try:
+        yield
+    finally:
+        for s, h in previous.items():
+            signal.signal(s, h)
 
 
 @contextmanager

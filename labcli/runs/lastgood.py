@@ -9,14 +9,13 @@ that iteration's checkpoint is there already); when training ends otherwise both
 
 from __future__ import annotations
 
-import os
-import shutil
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from labcli import files
 from labcli.plugins.framework import FrameworkSpec
-from labcli.runs import snapshot
+from labcli.runs import checkpoints, snapshot
 
 CANDIDATE, GOOD = ".candidate", ".good"
 
@@ -27,32 +26,31 @@ class LastGood:
 
     def keep(self, iteration: int, state: dict[str, Any] | None,
              save: Callable[[Path], None]) -> None:
-        """Write the agent after `iteration`'s update as the candidate."""
+        """Write the agent after `iteration`'s update as the candidate, a complete checkpoint."""
         candidate = self.run_dir / CANDIDATE
-        shutil.rmtree(candidate, ignore_errors=True)
-        candidate.mkdir()
-        if state is not None:
-            snapshot.save(snapshot.path_of(candidate, iteration), state)
-        save(self.framework.checkpoint_path(candidate, iteration))
+        files.remove(candidate)
+        extra = snapshot.writer(iteration, state) if state is not None else None
+        checkpoints.write(candidate, self.framework, iteration, save, extra)
 
     def promote(self) -> None:
         """The candidate acted finitely for a whole rollout: it is the last good state now."""
         candidate, good = self.run_dir / CANDIDATE, self.run_dir / GOOD
-        if candidate.is_dir():
-            shutil.rmtree(good, ignore_errors=True)
-            os.replace(candidate, good)
+        if candidate.is_dir() and not candidate.is_symlink():
+            files.remove(good)
+            candidate.replace(good)
 
     def commit(self, candidate_proven: bool) -> None:
-        """Move the newest proven state into the run dir as a checkpoint, companions first."""
+        """Move the newest proven state into the run dir as a checkpoint, unless that iteration
+        is checkpointed there already."""
         kept = self.run_dir / (CANDIDATE if candidate_proven else GOOD)
-        found = self.framework.checkpoints(kept) if kept.is_dir() else []
-        if found and not self.framework.checkpoint_path(self.run_dir,
-                                                         found[-1].iteration).exists():
-            model = found[-1].path
-            for path in [*(p for p in kept.iterdir() if p != model), model]:
-                os.replace(path, self.run_dir / path.name)
+        found = None
+        if kept.is_dir() and not kept.is_symlink():
+            found = checkpoints.latest_complete(self.framework, kept)
+        if found is not None and not checkpoints.manifest_path(self.run_dir,
+                                                               found.iteration).exists():
+            checkpoints.move(kept, self.run_dir, found.iteration)
         self.discard()
 
     def discard(self) -> None:
         for name in (CANDIDATE, GOOD):
-            shutil.rmtree(self.run_dir / name, ignore_errors=True)
+            files.remove(self.run_dir / name)

@@ -58,6 +58,8 @@ def plan(task: str, framework: str, *, num_envs: int | None = None, seed: int | 
     fw = registry.get_framework(framework)
     if num_envs is not None and num_envs <= 0:
         raise LabError(f"--num-envs must be a positive integer, got {num_envs}")
+    if run_name is not None:
+        rundir.check_run_name(run_name)
     run = resume = base = None
     if checkpoint is not None:
         run, resume = checkpoints.find(checkpoint, logs_dir, task, fw)

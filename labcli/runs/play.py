@@ -68,10 +68,11 @@ def load(*, run_dir: Path | None = None, checkpoint: Path | None = None,
     if num_envs is not None:
         layers.append({"num_envs": num_envs})
     env_cfg = config.build(spec.config_class, "env", layers)
+    agent_cfg = checkpoints.agent_config(fw_spec, run)
     fw = fw_spec.load()
     env = make_env(spec, env_cfg, backend=CPU, device="cpu", seed=seed)
     try:
-        policy = fw.load_policy(ckpt.path, env)
+        policy = fw.load_policy(ckpt.path, env, agent_cfg)
     except BaseException:
         env.close()
         raise

@@ -15,6 +15,7 @@ from typing import Any
 
 import yaml
 
+from labcli import files
 from labcli.errors import LabError
 
 MANIFEST = "run.json"
@@ -34,17 +35,22 @@ def default_logs_dir() -> Path:
     return Path(os.environ.get("LAB_LOGS_DIR", "logs"))
 
 
+# A run name is one path component of a directory name: no separators, no spaces or control
+# characters, not hidden and not an option, short enough for any file system with the time stamp.
+RUN_NAME = re.compile(r"[^\s\x00-\x1f\x7f/\\:.\-][^\s\x00-\x1f\x7f/\\:]{0,99}")
+
+
+def check_run_name(name: str) -> None:
+    if not RUN_NAME.fullmatch(name):
+        shown = repr(name) if len(name) <= 60 else f"{name[:40]!r}... ({len(name)} characters)"
+        raise LabError(f"--run-name {shown} is not a plain name",
+                       "use at most 100 letters, digits and punctuation other than / \\ :, no "
+                       "spaces, not starting with . or -")
+
+
 def write_atomic(path: Path, text: str) -> None:
-    """Write via a temporary file and a rename, so a reader never sees half a file."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w") as f:
-            f.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    """Atomically and durably, with the user's umask, never through a link (labcli/files.py)."""
+    files.write_atomic(path, text)
 
 
 def write_json(path: Path, data: dict[str, Any]) -> None:
@@ -166,9 +172,11 @@ def check_writable(path: Path) -> None:
 
 def create(logs_dir: Path, framework: str, task: str, name: str | None = None) -> Run:
     """Make a new run dir; two runs started in the same second get distinct dirs."""
+    if name is not None:
+        check_run_name(name)
     parent = logs_dir / framework / task
     try:
-        parent.mkdir(parents=True, exist_ok=True)
+        parent.mkdir(parents=True, exist_ok=True, mode=files.DIR_MODE)
     except OSError as exc:
         raise LabError(f"cannot create the run directory under {parent}: {exc.strerror}",
                        "pass a writable --logs-dir") from exc
@@ -178,7 +186,7 @@ def create(logs_dir: Path, framework: str, task: str, name: str | None = None) -
     for n in range(1000):
         path = parent / (base if n == 0 else f"{base}-{n}")
         try:
-            path.mkdir()
+            path.mkdir(mode=files.DIR_MODE)
         except FileExistsError:
             continue
         return Run(path)

@@ -75,7 +75,8 @@ def run(plan: TrainPlan, stop: interrupt.StopRequest, console: Console,
     try:
         resume_state = None
         if plan.resume is not None:
-            fw.load_policy(plan.resume.path, env)  # a corrupt or mismatched checkpoint fails here
+            # A corrupt or mismatched checkpoint fails here, before anything is written.
+            fw.load_policy(plan.resume.path, env, agent_cfg)
             resume_state = _resume_state(run_, plan.resume, env_cfg, console)
         wrappers.validate(_pipeline(fw, agent_cfg, plan.video, None), fw.name)
         if plan.video is not None:

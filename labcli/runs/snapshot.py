@@ -4,9 +4,9 @@ Saved as `state_<iteration>.pt` beside the checkpoint of that iteration."""
 
 from __future__ import annotations
 
-import os
 import pickle
 import random
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -52,11 +52,10 @@ def path_of(run_dir: Path, iteration: int) -> Path:
     return run_dir / f"{PREFIX}{iteration}.pt"
 
 
-def save(path: Path, state: dict[str, Any]) -> None:
-    """Through a temporary file and a rename, like checkpoints."""
-    tmp = path.with_name(f".tmp_{path.name}")
-    torch.save(state, tmp)
-    os.replace(tmp, path)
+def writer(iteration: int, state: dict[str, Any]) -> Callable[[Path], None]:
+    """What writes `state` as `state_<iteration>.pt` into a checkpoint's staging directory
+    (labcli/runs/checkpoints.py publishes it with the framework's files)."""
+    return lambda directory: torch.save(state, path_of(directory, iteration))
 
 
 def load(path: Path) -> dict[str, Any] | None:

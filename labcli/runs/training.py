@@ -29,7 +29,8 @@ def train(task: str, framework: str, *, num_envs: int | None = None, seed: int |
     """Train `task` with `framework`; everything is validated before anything is written. With
     `video`, env 0 is recorded into <run dir>/videos/train/."""
     console = console or Console(stderr=True)
-    with interrupt.deferred() as stop:
+    # A signal lab's console script recorded while this command started counts as the first.
+    with interrupt.deferred(interrupt.StopRequest(interrupt.startup.signum)) as stop:
         try:
             the_plan = plan(task, framework, num_envs=num_envs, seed=seed,
                             max_iterations=max_iterations, device=device, backend=backend,

@@ -145,7 +145,8 @@ class RslRlFramework(Framework):
                 runner.learn(cfg.max_iterations - ctx.start_iteration)
             ctx.save(runner.write_checkpoint)  # no-op unless stopped mid-rollout
 
-    def load_policy(self, checkpoint: Path, env: Any) -> Policy:
+    def load_policy(self, checkpoint: Path, env: Any, cfg: Any = None) -> Policy:
+        # The checkpoint describes its own networks (see save): `cfg` is not needed.
         saved = _read_checkpoint(checkpoint, "cpu")
         info = saved.get("infos")
         info = info.get(INFO_KEY) if isinstance(info, dict) else None

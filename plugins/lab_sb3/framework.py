@@ -1,29 +1,43 @@
-"""PPO from Stable-Baselines3 behind lab's Framework API."""
+"""PPO from Stable-Baselines3 behind lab's Framework API.
+
+Checkpoints are SB3's own zip (`model.save`), which SB3 users can `PPO.load`. lab never loads
+them that way: `PPO.load` unpickles the zip's `data` entry, and a pickle can run any code. The
+model is rebuilt from the run's agent config instead, and only the zip's tensors are read, with
+`torch.load(weights_only=True)`. VecNormalize's statistics are saved as JSON beside the zip.
+"""
 
 from __future__ import annotations
 
 import copy
-import os
+import io
+import json
 import pickle
 import zipfile
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import torch
 from stable_baselines3 import PPO
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.logger import configure
+from stable_baselines3.common.policies import ActorCriticPolicy
+from stable_baselines3.common.running_mean_std import RunningMeanStd
 from stable_baselines3.common.vec_env import VecNormalize
 from torch import nn
 
 from lab_sb3.config import Sb3PPOConfig
 from lab_sb3.plugin import ADAPTER, VEC_NORMALIZE
 from labcli.envs.wrappers import Step
-from labcli.errors import LabError
+from labcli.errors import LabError, first_line
 from labcli.plugins.framework import Framework, TrainContext
 from labcli.plugins.policy import ObsNormalizer, Policy, one_torch_thread
 
 ACTIVATIONS = {"tanh": nn.Tanh, "relu": nn.ReLU, "elu": nn.ELU}
+# What lab reads from SB3's zip: tensors (torch.load, weights_only) and plain JSON numbers.
+POLICY, OPTIMIZER, DATA = "policy.pth", "policy.optimizer.pth", "data"
+COUNTERS = ("num_timesteps", "_n_updates")
+MAX_MEMBER_BYTES = 1 << 30  # a member larger than this is not a policy-sized network
 
 
 class _LabCallback(BaseCallback):
@@ -41,8 +55,8 @@ class _LabCallback(BaseCallback):
         # that reset's observations once more: put back the saved statistics and normalize the
         # first observations with them, as the run that never stopped did.
         if self.normalizer is not None and self.ctx.resume is not None:
-            saved = _load_normalizer(Sb3Framework.normalizer_path(self.ctx.resume.path))
-            self.normalizer.obs_rms, self.normalizer.ret_rms = saved.obs_rms, saved.ret_rms
+            saved = read_normalizer(normalizer_path(self.ctx.resume.path))
+            self.normalizer.obs_rms, self.normalizer.ret_rms = saved["obs_rms"], saved["ret_rms"]
             self.model._last_obs = self.normalizer.normalize_obs(self.normalizer.old_obs)
         self.ctx.restore_rng()
 
@@ -73,43 +87,30 @@ class Sb3Framework(Framework):
                 "clip_obs": cfg.clip_obs, "gamma": cfg.gamma}))
         return steps
 
-    @staticmethod
-    def normalizer_path(checkpoint: Path) -> Path:
-        iteration = checkpoint.stem.rsplit("_", 1)[-1]
-        return checkpoint.with_name(f"vecnormalize_{iteration}.pkl")
-
     def train(self, env: Any, ctx: TrainContext) -> None:
         cfg: Sb3PPOConfig = ctx.cfg  # type: ignore[assignment]
+        model = PPO(
+            "MlpPolicy", env, n_steps=cfg.n_steps, batch_size=cfg.batch_size,
+            n_epochs=cfg.n_epochs, learning_rate=cfg.learning_rate, gamma=cfg.gamma,
+            gae_lambda=cfg.gae_lambda, clip_range=cfg.clip_range, ent_coef=cfg.ent_coef,
+            vf_coef=cfg.vf_coef, max_grad_norm=cfg.max_grad_norm, target_kl=cfg.target_kl,
+            policy_kwargs=policy_kwargs(cfg), seed=ctx.seed, device=ctx.device, verbose=0)
         if ctx.resume is not None:
-            model = PPO.load(ctx.resume.path, env=env, device=ctx.device)
-        else:
-            model = PPO(
-                "MlpPolicy", env, n_steps=cfg.n_steps, batch_size=cfg.batch_size,
-                n_epochs=cfg.n_epochs, learning_rate=cfg.learning_rate, gamma=cfg.gamma,
-                gae_lambda=cfg.gae_lambda, clip_range=cfg.clip_range, ent_coef=cfg.ent_coef,
-                vf_coef=cfg.vf_coef, max_grad_norm=cfg.max_grad_norm, target_kl=cfg.target_kl,
-                policy_kwargs={"net_arch": list(cfg.net_arch),
-                               "activation_fn": ACTIVATIONS[cfg.activation],
-                               "log_std_init": cfg.log_std_init},
-                seed=ctx.seed, device=ctx.device, verbose=0)
+            saved = read_checkpoint(ctx.resume.path, ctx.device)
+            load_weights(model.policy, saved, ctx.resume.path, ctx.env)
+            _load(model.policy.optimizer, saved[OPTIMIZER], ctx.resume.path)
+            for name in COUNTERS:
+                setattr(model, name, saved[DATA][name])
         model.set_logger(configure(str(ctx.run_dir), ["tensorboard"]))
 
         def save(path: Path) -> None:
             # After a stop mid-rollout SB3 has counted the dropped rollout's steps; the
             # checkpoint is that of the last complete iteration, whose steps lab counted.
             model.num_timesteps = ctx.steps
-            if isinstance(env, VecNormalize):
-                target = self.normalizer_path(path)
-                tmp = target.with_name(f".tmp_{target.name}")
-                live = env.obs_rms, env.ret_rms
-                if callback.boundary_stats is not None:
-                    env.obs_rms, env.ret_rms = callback.boundary_stats
-                try:
-                    env.save(tmp)
-                finally:
-                    env.obs_rms, env.ret_rms = live
-                os.replace(tmp, target)
             model.save(path)
+            if isinstance(env, VecNormalize):
+                stats = callback.boundary_stats or (env.obs_rms, env.ret_rms)
+                normalizer_path(path).write_text(json.dumps(normalizer_json(env, *stats)))
 
         callback = _LabCallback(ctx, save, env if isinstance(env, VecNormalize) else None)
         ctx.watch(model.policy)
@@ -122,40 +123,126 @@ class Sb3Framework(Framework):
             callback.end_iteration()  # the last update has no next rollout start
         ctx.save(save)
 
-    def load_policy(self, checkpoint: Path, env: Any) -> Policy:
-        try:
-            model = PPO.load(checkpoint, device="cpu")
-        except (zipfile.BadZipFile, ValueError, KeyError, EOFError, RuntimeError) as exc:
-            raise LabError(f"checkpoint {checkpoint} is not a loadable SB3 model: {exc}",
-                           "pick another checkpoint with --checkpoint") from exc
-        _check_spaces(checkpoint, model, env)
-        policy = model.policy
+    def load_policy(self, checkpoint: Path, env: Any, cfg: Sb3PPOConfig) -> Policy:
+        policy = ActorCriticPolicy(env.single_observation_space, env.single_action_space,
+                                   lambda _: cfg.learning_rate, **policy_kwargs(cfg))
+        load_weights(policy, read_checkpoint(checkpoint, "cpu"), checkpoint, env)
         actor = nn.Sequential(policy.mlp_extractor.policy_net, policy.action_net)
         normalizer = None
-        pkl = self.normalizer_path(checkpoint)
-        if pkl.is_file():
-            vn = _load_normalizer(pkl)
-            if vn.norm_obs:
-                normalizer = ObsNormalizer(torch.as_tensor(vn.obs_rms.mean),
-                                           torch.as_tensor(vn.obs_rms.var), vn.epsilon, vn.clip_obs)
+        if cfg.normalize_obs:
+            saved = read_normalizer(normalizer_path(checkpoint))
+            normalizer = ObsNormalizer(torch.as_tensor(saved["obs_rms"].mean),
+                                       torch.as_tensor(saved["obs_rms"].var), saved["epsilon"],
+                                       saved["clip_obs"])
         return Policy(actor, normalizer).eval()
 
 
-def _load_normalizer(path: Path) -> VecNormalize:
+def policy_kwargs(cfg: Sb3PPOConfig) -> dict[str, Any]:
+    return {"net_arch": list(cfg.net_arch), "activation_fn": ACTIVATIONS[cfg.activation],
+            "log_std_init": cfg.log_std_init}
+
+
+def normalizer_path(checkpoint: Path) -> Path:
+    """vecnormalize_<N>.json beside model_<N>.zip."""
+    iteration = checkpoint.stem.rsplit("_", 1)[-1]
+    return checkpoint.with_name(f"vecnormalize_{iteration}.json")
+
+
+def _not_loadable(checkpoint: Path, why: str) -> LabError:
+    return LabError(f"checkpoint {checkpoint} is not a loadable SB3 model: {why}",
+                    "pick another checkpoint with --checkpoint")
+
+
+def read_checkpoint(path: Path, device: str) -> dict[str, Any]:
+    """The tensors and counters of SB3's zip, read without unpickling anything."""
     try:
-        with path.open("rb") as f:
-            return pickle.load(f)
-    except (OSError, pickle.UnpicklingError, EOFError) as exc:
-        raise LabError(f"normalizer {path} cannot be read: {exc}",
-                       "the checkpoint is incomplete; pick another") from exc
+        with zipfile.ZipFile(path) as archive:
+            members = {info.filename: info for info in archive.infolist()}
+            for name in (POLICY, OPTIMIZER, DATA):
+                if name not in members:
+                    raise _not_loadable(path, f"it has no '{name}'")
+                if members[name].file_size > MAX_MEMBER_BYTES:
+                    raise _not_loadable(path, f"its '{name}' is {members[name].file_size:,} "
+                                              "bytes")
+            saved = {name: torch.load(io.BytesIO(archive.read(name)), map_location=device,
+                                      weights_only=True) for name in (POLICY, OPTIMIZER)}
+            data = json.loads(archive.read(DATA))
+    except (zipfile.BadZipFile, OSError, EOFError, RuntimeError, ValueError,
+            pickle.UnpicklingError) as exc:
+        raise _not_loadable(path, f"{type(exc).__name__}: {first_line(exc)}") from exc
+    counters = {name: data.get(name) if isinstance(data, dict) else None for name in COUNTERS}
+    if not all(isinstance(v, int) and not isinstance(v, bool) and v >= 0
+               for v in counters.values()):
+        raise _not_loadable(path, f"its data has no counts {', '.join(COUNTERS)}")
+    return {**saved, DATA: counters}
 
 
-def _check_spaces(checkpoint: Path, model: PPO, env: Any) -> None:
-    for what, saved, current in (
-        ("observation", model.observation_space.shape, env.single_observation_space.shape),
-        ("action", model.action_space.shape, env.single_action_space.shape),
+def load_weights(policy: ActorCriticPolicy, saved: dict[str, Any], checkpoint: Path,
+                 env: Any) -> None:
+    weights = saved[POLICY]
+    if not isinstance(weights, dict) or not all(isinstance(t, torch.Tensor)
+                                                for t in weights.values()):
+        raise _not_loadable(checkpoint, f"its {POLICY} is not a state dict")
+    first = weights.get("mlp_extractor.policy_net.0.weight", weights.get("action_net.weight"))
+    log_std = weights.get("log_std")
+    for what, size, current in (
+        ("observation", None if first is None else first.shape[-1],
+         env.single_observation_space.shape[0]),
+        ("action", None if log_std is None else log_std.shape[0], env.single_action_space.shape[0]),
     ):
-        if saved != current:
-            raise LabError(f"checkpoint {checkpoint.name} has {what} size {saved[0]}, but the env"
-                           f" '{env.task_spec.name}' has {current[0]}",
+        if size is not None and size != current:
+            raise LabError(f"checkpoint {checkpoint.name} has {what} size {size}, but the env"
+                           f" '{env.task_spec.name}' has {current}",
                            "use a checkpoint trained on this task")
+    _load(policy, weights, checkpoint)
+
+
+def _load(module: Any, state: Any, checkpoint: Path) -> None:
+    try:
+        module.load_state_dict(state)
+    except (RuntimeError, KeyError, ValueError, TypeError) as exc:
+        raise LabError(f"checkpoint {checkpoint.name} does not fit the run's agent config: "
+                       f"{first_line(exc)}", "resume or play with the settings it was trained "
+                       "with (params/agent.yaml)") from exc
+
+
+def normalizer_json(env: VecNormalize, obs_rms: RunningMeanStd,
+                    ret_rms: RunningMeanStd) -> dict[str, Any]:
+    """VecNormalize's settings and statistics as plain numbers (floats round-trip exactly)."""
+    def stats(rms: RunningMeanStd) -> dict[str, Any]:
+        return {"mean": np.asarray(rms.mean, dtype=np.float64).tolist(),
+                "var": np.asarray(rms.var, dtype=np.float64).tolist(), "count": float(rms.count)}
+
+    return {"norm_obs": env.norm_obs, "norm_reward": env.norm_reward, "clip_obs": env.clip_obs,
+            "clip_reward": env.clip_reward, "gamma": env.gamma, "epsilon": env.epsilon,
+            "obs_rms": stats(obs_rms), "ret_rms": stats(ret_rms)}
+
+
+def read_normalizer(path: Path) -> dict[str, Any]:
+    """The statistics of `normalizer_json`, as RunningMeanStd; a LabError when missing, damaged,
+    or an old pickle (which lab never loads: a pickle can run code)."""
+    if not path.is_file():
+        old = path.with_suffix(".pkl")
+        if old.is_file():
+            raise LabError(f"normalizer {old.name} is a pickle, which lab does not load (loading "
+                           "a pickle can run any code in it)",
+                           f"retrain, or resave its statistics as {path.name}")
+        raise LabError(f"checkpoint {path.name.replace('vecnormalize', 'model')} was trained with "
+                       f"normalize_obs, but its normalizer {path.name} is missing",
+                       "pick another checkpoint, or restore the file")
+    try:
+        data = json.loads(path.read_bytes())
+        out = {key: float(data[key]) for key in ("clip_obs", "epsilon")}
+        for key in ("obs_rms", "ret_rms"):
+            rms = RunningMeanStd(shape=np.shape(data[key]["mean"]))
+            rms.mean = np.asarray(data[key]["mean"], dtype=np.float64)
+            rms.var = np.asarray(data[key]["var"], dtype=np.float64)
+            rms.count = float(data[key]["count"])
+            if rms.mean.shape != rms.var.shape or not (np.isfinite(rms.mean).all()
+                                                       and (rms.var >= 0).all()):
+                raise ValueError(f"{key} has mismatched or non-finite statistics")
+            out[key] = rms
+    except (OSError, ValueError, TypeError, KeyError, UnicodeDecodeError) as exc:
+        raise LabError(f"normalizer {path} cannot be read: {type(exc).__name__}: "
+                       f"{first_line(exc)}", "the checkpoint is damaged; pick another") from exc
+    return out

@@ -155,7 +155,8 @@ class SkrlFramework(Framework):
                     break
         ctx.save(save)  # after a stop mid-rollout: the last complete iteration
 
-    def load_policy(self, checkpoint: Path, env: Any) -> Policy:
+    def load_policy(self, checkpoint: Path, env: Any, cfg: Any = None) -> Policy:
+        # The checkpoint describes its own networks (see save): `cfg` is not needed.
         saved = read_checkpoint(checkpoint)
         meta = saved[META]
         _check_sizes(checkpoint, meta, env)
