@@ -44,9 +44,12 @@ def fsync_file(path: Path) -> None:
         os.close(fd)
 
 
-def real_dir(path: Path, create: bool = True) -> Path:
+def real_dir(path: Path, create: bool = True, below: Path | None = None) -> Path:
     """`path` as a directory that is no link (created, with its missing parents, when `create`):
-    a link in a shared run dir would send lab's writes wherever it points."""
+    a link in a shared run dir would send lab's writes wherever it points. With `below`, every
+    directory between `below` and `path` is checked so, not only `path`."""
+    if below is not None and path != below:
+        real_dir(path.parent, create, below)
     if path.is_symlink():
         raise LabError(f"{path} is a symbolic link; lab does not write through links in a run "
                        "dir", f"remove the link ({path}) and run again")
@@ -72,12 +75,24 @@ def unwritable(path: Path, exc: OSError) -> LabError:
                     "free some space" if exc.errno == 28 else "pick a writable place")
 
 
+def user_dir(path: Path) -> Path:
+    """A directory the user named (`-o`): created if missing, links followed as the user meant."""
+    try:
+        path.mkdir(parents=True, exist_ok=True, mode=DIR_MODE)
+    except OSError as exc:
+        raise unwritable(path, exc) from exc
+    return path
+
+
 @contextlib.contextmanager
-def staged(target: Path) -> Iterator[Path]:
+def staged(target: Path, below: Path | None = None) -> Iterator[Path]:
     """A fresh temporary path beside `target` (same suffix, so that libraries that look at it are
     content), created exclusively; renamed over `target` when the block ends, removed if it
-    raises. Renaming replaces a link at `target` instead of following it."""
-    directory = real_dir(target.parent)
+    raises. Renaming replaces a link at `target` instead of following it. With `below` (a run
+    dir), no directory between it and `target` may be a link; without, `target`'s directory is
+    the user's, links and all."""
+    directory = (user_dir(target.parent) if below is None
+                 else real_dir(target.parent, below=below))
     try:
         fd, name = tempfile.mkstemp(dir=directory, prefix=f".tmp_{target.stem}.",
                                     suffix=target.suffix)
@@ -97,9 +112,10 @@ def staged(target: Path) -> Iterator[Path]:
         tmp.unlink(missing_ok=True)
 
 
-def write_atomic(path: Path, data: str | bytes) -> None:
-    """Write `data` to `path` atomically and durably, with the user's umask."""
-    with staged(path) as tmp:
+def write_atomic(path: Path, data: str | bytes, below: Path | None = None) -> None:
+    """Write `data` to `path` atomically and durably, with the user's umask (`below`: as in
+    `staged`)."""
+    with staged(path, below) as tmp:
         if isinstance(data, str):
             tmp.write_text(data)
         else:

@@ -34,9 +34,9 @@ def test_runs_started_in_the_same_second_get_distinct_dirs(tmp_path, monkeypatch
 
 def write_run(tmp_path, manifest: dict, summary: dict | None = None) -> rundir.Run:
     run = rundir.Run(tmp_path)
-    rundir.write_json(tmp_path / rundir.MANIFEST, manifest)
+    rundir.write_json(tmp_path, rundir.MANIFEST, manifest)
     if summary is not None:
-        rundir.write_json(tmp_path / rundir.SUMMARY, summary)
+        rundir.write_json(tmp_path, rundir.SUMMARY, summary)
     return run
 
 

@@ -42,7 +42,7 @@ def fake_run(logs: Path, name: str, **manifest) -> Path:
     base = {"task": "cartpole", "framework": "rsl_rl", "state": "running",
             "started": datetime.now().isoformat(timespec="seconds"),
             "host": socket.gethostname(), "pid": os.getpid()}
-    rundir.write_json(run / rundir.MANIFEST, {**base, **manifest})
+    rundir.write_json(run, rundir.MANIFEST, {**base, **manifest})
     return run
 
 
@@ -72,7 +72,7 @@ def test_the_table_states_come_from_run_state(tmp_path):
     fake_run(tmp_path, "alive", **rundir.process_identity())
     fake_run(tmp_path, "dead_pid", pid=int(dead.stdout))
     interrupted = fake_run(tmp_path, "interrupted")
-    rundir.write_json(interrupted / rundir.SUMMARY, {"state": "interrupted", "steps": 64})
+    rundir.write_json(interrupted, rundir.SUMMARY, {"state": "interrupted", "steps": 64})
     states = {row.dir.name: row.state for row in rundir.table(tmp_path)}
     assert states == {"alive": "running", "dead_pid": "failed", "interrupted": "interrupted"}
     (running,) = rundir.table(tmp_path, state="running")

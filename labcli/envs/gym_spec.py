@@ -73,12 +73,30 @@ def task_spec(name: str) -> GymTaskSpec:
         hint = f"did you mean 'gym:{close[0]}'? " if close else ""
         raise LabError(f"unknown gymnasium env '{gym_id}' ({first_line(exc)})",
                        hint + "see gymnasium.pprint_registry() for the registered ids") from None
+    _check_importable(gym_id, env_spec.entry_point)
     threshold = env_spec.reward_threshold
     return GymTaskSpec(
         name=name, gym_id=gym_id, reward_threshold=threshold,
         description=f"gymnasium's {gym_id}",
         success=f"episode return ≥ {threshold:g} (the id's reward_threshold)"
         if threshold is not None else "")
+
+
+def _check_importable(gym_id: str, entry_point: object) -> None:
+    """Import the env's module now, so that one needing a package that is not installed (jax for
+    gymnasium's phys2d and tabular envs, box2d for LunarLander) is one line, before any run."""
+    from gymnasium.envs.registration import load_env_creator
+
+    if not isinstance(entry_point, str):
+        return
+    try:
+        load_env_creator(entry_point)
+    except ImportError as exc:
+        raise LabError(f"gymnasium env '{gym_id}' cannot be imported here: {first_line(exc)}",
+                       "install the package that provides it, or pick another env") from None
+    except Exception as exc:  # an env package broken in any other way: still one line
+        raise LabError(f"gymnasium env '{gym_id}' cannot be loaded: {type(exc).__name__}: "
+                       f"{first_line(exc)}") from None
 
 
 def gym_ids() -> list[str]:

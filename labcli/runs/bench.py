@@ -17,7 +17,7 @@ from labcli.envs.env import LabVecEnv
 from labcli.errors import LabError
 from labcli.plugins import registry
 from labcli.plugins.policy import one_torch_thread
-from labcli.runs import training
+from labcli.runs import config, training
 from labcli.runs.session import check_device
 
 TRAIN_ITERATIONS = 5
@@ -108,11 +108,15 @@ def bench(task: str, num_envs: Sequence[int], *, backend: str | None = None,
     if threads is not None and threads <= 0:
         raise LabError(f"--threads must be a positive integer, got {threads}",
                        "leave it out to use the cores this process may use")
+    if not 0 < seconds <= 3600:
+        raise LabError(f"--seconds must be more than 0 and at most 3600, got {seconds:g}")
     overrides = [f"env.threads={threads}"] if threads is not None else []
+    # Validated as `lab train` validates them: a count past the config's bounds is one line.
+    configs = [config.build(spec.config_class, "env", [config.parse_set(
+        [f"env.num_envs={n}", *overrides])["env"]]) for n in num_envs]
     rows = []
-    for n in num_envs:
-        env = LabVecEnv(spec, spec.config_class(num_envs=n, threads=threads), backend=backend,
-                        device=device)
+    for n, cfg in zip(num_envs, configs, strict=True):
+        env = LabVecEnv(spec, cfg, backend=backend, device=device)
         try:
             row = BenchRow(task, env.backend, n, env_rate(env, seconds),
                            threads=env.sim.nthread)

@@ -36,13 +36,14 @@ def manifest_path(directory: Path, iteration: int) -> Path:
 
 def write(directory: Path, fw: FrameworkSpec, iteration: int, save: Callable[[Path], None],
           extra: Callable[[Path], None] | None = None,
-          check: Callable[[Path], None] | None = None) -> Checkpoint:
+          check: Callable[[Path], None] | None = None, below: Path | None = None) -> Checkpoint:
     """Checkpoint `iteration` into `directory`: `save(path)` writes the framework's model at
     `path` (its final name, in a private staging directory) and any companions beside it;
     `extra(staging_dir)` adds lab's own files (the env state); `check(path)` may refuse the
     staged model by raising; then the set is published. Nothing is left behind when any of it
-    fails."""
-    directory = files.real_dir(directory)
+    fails. `directory` is a run dir, or (with `below`, the run dir) a directory inside one."""
+    if below is not None:
+        files.real_dir(directory, below=below)
     try:
         staging = Path(tempfile.mkdtemp(prefix=f".tmp_checkpoint_{iteration}.", dir=directory))
     except OSError as exc:
@@ -85,7 +86,8 @@ def _publish(staging: Path, directory: Path, iteration: int, framework: str) -> 
     except OSError as exc:
         raise files.unwritable(directory, exc) from exc
     manifest = {"iteration": iteration, "framework": framework, "files": entries}
-    files.write_atomic(manifest_path(directory, iteration), json.dumps(manifest, indent=2) + "\n")
+    files.write_atomic(manifest_path(directory, iteration), json.dumps(manifest, indent=2) + "\n",
+                       below=directory)
 
 
 def move(source: Path, target: Path, iteration: int) -> None:

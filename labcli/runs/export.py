@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from labcli import files
 from labcli.errors import LabError
 from labcli.runs import rundir
 from labcli.runs.play import LoadedPolicy, load
@@ -94,21 +95,25 @@ def export(fmt: Format | str, *, run_dir: Path | None = None, checkpoint: Path |
         obs = _check_observations(loaded)
         with torch.inference_mode():
             expected = policy(obs).numpy()
-        out_dir = loaded.run.dir / rundir.EXPORTED
-        out_dir.mkdir(exist_ok=True)
-        if fmt is Format.onnx:
-            path = out_dir / "policy.onnx"
-            _export_onnx(policy, obs, path)
-            got = _run_onnx(path, obs)
-        else:
-            path = out_dir / "policy.pt"
-            got = _export_jit(policy, obs, path)
-        diff = float(np.max(np.abs(got - expected)))
-        if not diff < TOLERANCE:
-            raise LabError(f"exported {path.name} differs from the torch policy by {diff:.2e} "
-                           f"(tolerance {TOLERANCE:.0e})", "please report this as a bug")
+        run_dir = loaded.run.dir
+        out_dir = files.real_dir(run_dir / rundir.EXPORTED, below=run_dir)
+        path = out_dir / ("policy.onnx" if fmt is Format.onnx else "policy.pt")
+        # Written and checked under a temporary name: the previous export survives a failed
+        # check, a kill or a full disk, and a link at `path` is replaced, not followed.
+        with files.staged(path, below=run_dir) as tmp:
+            if fmt is Format.onnx:
+                _export_onnx(policy, obs, tmp)
+                got = _run_onnx(tmp, obs)
+            else:
+                got = _export_jit(policy, obs, tmp)
+            diff = float(np.max(np.abs(got - expected)))
+            if not diff < TOLERANCE:
+                raise LabError(f"exported {path.name} differs from the torch policy by "
+                               f"{diff:.2e} (tolerance {TOLERANCE:.0e}); nothing was written",
+                               "please report this as a bug")
         metadata = out_dir / "policy.json"
-        rundir.write_json(metadata, _metadata(loaded, fmt, path, diff, len(obs)))
+        rundir.write_json(run_dir, f"{rundir.EXPORTED}/{metadata.name}",
+                          _metadata(loaded, fmt, path, diff, len(obs)))
         return ExportResult(path, metadata, diff, len(obs))
     finally:
         loaded.env.close()

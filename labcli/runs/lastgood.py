@@ -30,7 +30,7 @@ class LastGood:
         candidate = self.run_dir / CANDIDATE
         files.remove(candidate)
         extra = snapshot.writer(iteration, state) if state is not None else None
-        checkpoints.write(candidate, self.framework, iteration, save, extra)
+        checkpoints.write(candidate, self.framework, iteration, save, extra, below=self.run_dir)
 
     def promote(self) -> None:
         """The candidate acted finitely for a whole rollout: it is the last good state now."""

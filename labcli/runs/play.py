@@ -12,6 +12,7 @@ from typing import Any
 
 import torch
 
+from labcli import files
 from labcli.envs.make import make_env
 from labcli.envs.render.video import VideoRecorder
 from labcli.envs.render.viewer import Viewer, check_display
@@ -139,8 +140,11 @@ class Show:
 
 def _rollout_shown(env, act, episodes: int, seed: int, show: Show,
                    folder: Path) -> Episodes:
-    recorder = None if show.video is None else VideoRecorder(env, folder, show.video.length,
-                                                             interval=None)
+    recorder = None
+    if show.video is not None:
+        # An unwritable place, or a link planted on the way, fails now, not after the rollout.
+        files.real_dir(folder, below=folder.parent.parent)
+        recorder = VideoRecorder(env, folder, show.video.length, interval=None)
     shown = recorder or env
     if show.viewer:
         shown = Viewer(shown)

@@ -6,6 +6,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from labcli import files
 from labcli.envs import metrics
 from labcli.errors import LabError
 from labcli.runs import rundir
@@ -82,8 +83,8 @@ def plot(selected: Sequence[rundir.Run], output: Path,
     ax.grid(alpha=0.3)
     ax.legend(loc="best", fontsize="small")
     fig.tight_layout()
-    output.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(output)
+    with files.staged(output) as tmp:  # -o names a place of the user's, links and all
+        fig.savefig(tmp, format="png")
     return result
 
 

@@ -48,13 +48,14 @@ def check_run_name(name: str) -> None:
                        "spaces, not starting with . or -")
 
 
-def write_atomic(path: Path, text: str) -> None:
-    """Atomically and durably, with the user's umask, never through a link (labcli/files.py)."""
-    files.write_atomic(path, text)
+def write_atomic(run_dir: Path, name: str, text: str) -> None:
+    """`name` (e.g. params/env.yaml) in `run_dir`, atomically and durably, with the user's umask,
+    never through a link inside the run dir (labcli/files.py)."""
+    files.write_atomic(run_dir / name, text, below=run_dir)
 
 
-def write_json(path: Path, data: dict[str, Any]) -> None:
-    write_atomic(path, json.dumps(data, indent=2, sort_keys=False) + "\n")
+def write_json(run_dir: Path, name: str, data: dict[str, Any]) -> None:
+    write_atomic(run_dir, name, json.dumps(data, indent=2, sort_keys=False) + "\n")
 
 
 def read_json(path: Path) -> dict[str, Any]:
@@ -95,7 +96,7 @@ class Run:
     def update_manifest(self, **changes: Any) -> None:
         data = self.manifest()
         data.update(changes)
-        write_json(self.dir / MANIFEST, data)
+        write_json(self.dir, MANIFEST, data)
 
     def summary(self) -> dict[str, Any] | None:
         path = self.dir / SUMMARY

@@ -18,7 +18,7 @@ import torch
 from rich.console import Console
 from torch.utils.tensorboard import SummaryWriter
 
-from labcli import __version__
+from labcli import __version__, files
 from labcli.envs import metrics, mjwarnings, wrappers
 from labcli.envs.config import TaskConfig
 from labcli.envs.make import make_env
@@ -85,10 +85,10 @@ def run(plan: TrainPlan, stop: interrupt.StopRequest, console: Console,
             raise interrupt.before_run(stop)
         if run_ is None:
             run_ = rundir.create(plan.logs_dir, fw.name, plan.spec.name, plan.run_name)
-            rundir.write_atomic(run_.dir / rundir.ENV_PARAMS, config.to_yaml(env_cfg))
-        rundir.write_atomic(run_.dir / rundir.AGENT_PARAMS, config.to_yaml(agent_cfg))
+            rundir.write_atomic(run_.dir, rundir.ENV_PARAMS, config.to_yaml(env_cfg))
+        rundir.write_atomic(run_.dir, rundir.AGENT_PARAMS, config.to_yaml(agent_cfg))
         argv = list(command) if command is not None else ["lab", *sys.argv[1:]]
-        rundir.write_atomic(run_.dir / rundir.COMMAND, shlex.join(argv) + "\n")
+        rundir.write_atomic(run_.dir, rundir.COMMAND, shlex.join(argv) + "\n")
         manifest = {
             "task": plan.spec.name, "framework": fw.name, "seed": agent_cfg.seed,
             "device": device, "backend": env.backend, "num_envs": env.num_envs,
@@ -98,9 +98,11 @@ def run(plan: TrainPlan, stop: interrupt.StopRequest, console: Console,
         }
         if plan.resume is not None:
             manifest["resumed_from"] = plan.resume.path.name
-        rundir.write_json(run_.dir / rundir.MANIFEST, manifest)
+        rundir.write_json(run_.dir, rundir.MANIFEST, manifest)
         if resume_state is not None and resume_state["env"] is not None:
             env.resume_from(resume_state["env"])
+        if plan.video is not None:  # no link planted on the way: videos go into the run dir
+            files.real_dir(videos.folder(run_.dir, videos.TRAIN), below=run_.dir)
         pipeline = _pipeline(fw, agent_cfg, plan.video, run_.dir)
         return _run_training(fw, env, agent_cfg, run_, plan.resume, resume_state, stop, device,
                              pipeline, console)
@@ -158,7 +160,7 @@ def _run_training(fw: Framework, env: Any, cfg: AgentConfig, run: rundir.Run,
                        resume_state=resume_state, stop=stop)
     t0 = time.perf_counter()
     # A runs table shows the run as running from now on; the real summary replaces this one.
-    rundir.write_json(run.dir / rundir.SUMMARY, _summary(ctx, fw, run, rundir.RUNNING, 0.0))
+    rundir.write_json(run.dir, rundir.SUMMARY, _summary(ctx, fw, run, rundir.RUNNING, 0.0))
     state, error, wrapped = rundir.FAILED, None, None
     try:
         wrapped = wrappers.apply(env, pipeline, fw.name)
@@ -182,7 +184,7 @@ def _run_training(fw: Framework, env: Any, cfg: AgentConfig, run: rundir.Run,
         summary = _summary(ctx, fw, run, state, time.perf_counter() - t0)
         if error is not None:
             summary["error"] = error.message
-        rundir.write_json(run.dir / rundir.SUMMARY, summary)
+        rundir.write_json(run.dir, rundir.SUMMARY, summary)
         run.update_manifest(state=state)
         if wrapped is not None:
             wrapped.close()  # env-stage wrappers write what they hold (a video cut short)

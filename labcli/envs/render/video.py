@@ -3,12 +3,13 @@ registered as the wrapper `video` (labcli/plugins/builtin.py)."""
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
 import numpy as np
+
+from labcli import files
 
 
 class VideoRecorder(gym.vector.VectorWrapper):
@@ -52,11 +53,8 @@ class VideoRecorder(gym.vector.VectorWrapper):
     def _write(self) -> None:
         import imageio.v2 as imageio
 
-        self.folder.mkdir(parents=True, exist_ok=True)
         path = self.folder / f"step-{self._start}.mp4"
-        # Written under a temporary name and renamed: a reader never sees half a video.
-        tmp = path.with_name(f".tmp_{path.name}")
-        imageio.mimwrite(tmp, self._frames, fps=self.fps, macro_block_size=1)
-        os.replace(tmp, path)
+        with files.staged(path, below=self.folder) as tmp:  # a reader never sees half a video
+            imageio.mimwrite(tmp, self._frames, fps=self.fps, macro_block_size=1)
         self.files.append(path)
         self._frames = []
