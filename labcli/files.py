@@ -1,18 +1,31 @@
-"""Writing files a user relies on: atomic (a temporary name, then a rename: a reader never sees half
-a file, a kill leaves the previous one), durable (the file and its directory are fsynced before
-the write counts), with the user's umask (as `open()` would create it), and never through a link:
-a run dir may come from anyone, and a link planted in it must not send a write elsewhere."""
+"""Reading and writing the files of a run dir, which may come from anyone.
+
+Writes are atomic (a temporary name, then a rename: a reader never sees half a file, a kill leaves
+the previous one), durable (the file and its directory are fsynced before the write counts), with
+the user's umask (as `open()` would create it), and never through a link planted in a run dir.
+Reads take regular files only, of bounded size, without blocking (a FIFO, /dev/zero), and YAML
+and JSON are parsed with their nesting and YAML's alias expansion bounded."""
 
 from __future__ import annotations
 
 import contextlib
+import json
 import os
 import shutil
+import stat
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
+
+import yaml
 
 from labcli.errors import LabError
+
+TEXT_LIMIT = 16 << 20  # params, manifests, summaries, configs: far beyond any real one
+# Nodes a YAML document may expand to (aliases counted each time they are used): a config has
+# hundreds; a "billion laughs" document expands to 10^9 and exhausts memory when merged.
+YAML_NODE_LIMIT = 100_000
 
 
 def _umask() -> int:
@@ -128,3 +141,103 @@ def remove(path: Path) -> None:
         path.unlink(missing_ok=True)
     elif path.is_dir():
         shutil.rmtree(path, ignore_errors=True)
+
+
+class Unreadable(Exception):
+    """A file lab will not read: not a regular file, too large, not valid text or data. The
+    message is a predicate ("is not a regular file"), for the line `f"{path} {exc}"`."""
+
+
+class TooLarge(Unreadable):
+    """Data past lab's bounds: more bytes, nesting or YAML expansion than any real file has."""
+
+
+def read_bytes(path: Path, limit: int = TEXT_LIMIT) -> bytes:
+    """The content of the regular file at `path` (links followed), at most `limit` bytes. Opened
+    without blocking, so that a FIFO cannot hang lab; a device, a directory or a larger file is
+    refused before it is read."""
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_CLOEXEC", 0))
+    except OSError as exc:
+        raise Unreadable(f"cannot be opened: {exc.strerror or type(exc).__name__}") from exc
+    try:
+        info = os.fstat(fd)
+        if not stat.S_ISREG(info.st_mode):
+            raise Unreadable("is not a regular file")
+        if info.st_size > limit:
+            raise TooLarge(f"is {info.st_size:,} bytes, more than the {limit:,} lab reads")
+        chunks, size = [], 0
+        while size <= limit:
+            chunk = os.read(fd, min(1 << 20, limit + 1 - size))
+            if not chunk:
+                break
+            chunks.append(chunk)
+            size += len(chunk)
+        if size > limit:
+            raise TooLarge(f"is more than the {limit:,} bytes lab reads")
+        return b"".join(chunks)
+    except OSError as exc:
+        raise Unreadable(f"cannot be read: {exc.strerror or type(exc).__name__}") from exc
+    finally:
+        os.close(fd)
+
+
+def read_text(path: Path, limit: int = TEXT_LIMIT) -> str:
+    try:
+        return read_bytes(path, limit).decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise Unreadable(f"is not UTF-8 text (byte {exc.start})") from None
+
+
+def load_yaml(text: str) -> Any:
+    """YAML's safe loader, with nesting and alias expansion bounded (`YAML_NODE_LIMIT`)."""
+    loader = yaml.SafeLoader(text)
+    try:
+        node = loader.get_single_node()
+        if node is None:
+            return None
+        _check_yaml_size(node)
+        return loader.construct_document(node)
+    except RecursionError:
+        raise TooLarge("is YAML nested too deep") from None
+    except yaml.YAMLError as exc:
+        raise Unreadable(f"is not valid YAML: {str(exc).splitlines()[0]}") from None
+    finally:
+        loader.dispose()
+
+
+def _check_yaml_size(root: yaml.Node) -> None:
+    """Count the nodes the document expands to, each alias as often as it is used, by a walk
+    that sizes each distinct node once."""
+    sizes: dict[int, int] = {}
+    stack: list[tuple[yaml.Node, bool]] = [(root, False)]
+    while stack:
+        node, children_done = stack.pop()
+        if id(node) in sizes:
+            continue
+        children = _children(node)
+        if children_done or not children:
+            sizes[id(node)] = 1 + sum(sizes[id(c)] for c in children)
+            if sizes[id(node)] > YAML_NODE_LIMIT:
+                raise TooLarge(f"is YAML that expands to more than {YAML_NODE_LIMIT:,} nodes "
+                                 "(aliases counted as often as they are used)")
+            continue
+        stack.append((node, True))
+        stack.extend((c, False) for c in children if id(c) not in sizes)
+
+
+def _children(node: yaml.Node) -> list[yaml.Node]:
+    if isinstance(node, yaml.SequenceNode):
+        return list(node.value)
+    if isinstance(node, yaml.MappingNode):
+        return [n for pair in node.value for n in pair]
+    return []
+
+
+def load_json(data: bytes | str) -> Any:
+    try:
+        return json.loads(data)
+    except RecursionError:
+        raise TooLarge("is JSON nested too deep") from None
+    except (ValueError, UnicodeDecodeError) as exc:
+        raise Unreadable(f"is not valid JSON: {exc}") from None

@@ -25,9 +25,9 @@ from labcli.envs import metrics, wrappers
 from labcli.envs.env import LabVecEnv
 from labcli.envs.wrappers import Stage
 from labcli.plugins import registry
-from labcli.plugins.framework import FrameworkSpec
+from labcli.plugins.framework import Checkpoint, FrameworkSpec
 from labcli.plugins.policy import Policy
-from labcli.runs import checkpoints, rundir, training
+from labcli.runs import checkpoints, loading, rundir, training
 from labcli.runs.plot import read_scalars
 from labcli.runs.session import TrainOutcome
 
@@ -93,7 +93,9 @@ def load_policy(name: str, checkpoint: Path, env: Any) -> Policy:
     `lab play` loads it."""
     spec = registry.get_framework(name)
     cfg = checkpoints.agent_config(spec, rundir.open_run(checkpoint.parent))
-    return spec.load().load_policy(checkpoint, env, cfg)
+    iteration = int(checkpoint.name.removeprefix(spec.checkpoint_prefix)
+                    .removesuffix(spec.checkpoint_suffix))
+    return loading.policy_of(spec.load(), Checkpoint(checkpoint, iteration), env, cfg)
 
 
 def check_adapter(name: str, probe: Probe | None = None) -> None:

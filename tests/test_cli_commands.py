@@ -82,7 +82,7 @@ def test_config_show_is_a_config_file_train_reproduces(tmp_path):
 
 @pytest.mark.parametrize("content, phrases", [
     (None, ["does not exist"]),
-    ("dir", ["cannot be read"]),
+    ("dir", ["is not a regular file"]),
     ("env: [unclosed", ["not valid YAML"]),
     ("agent:\n  learning_rat: 1\n", ["unknown key 'agent.learning_rat'", "learning_rate"]),
     ("- a list\n", ["must be a mapping"]),

@@ -7,19 +7,29 @@ from typing import Annotated
 
 import typer
 
-from labcli.commands.common import FrameworkOpt, JsonOpt, LogsDir, TaskOpt, figure, out, table
+from labcli.commands.common import (
+    FrameworkOpt,
+    JsonOpt,
+    LogsDir,
+    TaskOpt,
+    err,
+    figure,
+    out,
+    table,
+)
 
 
 def runs(
     task: TaskOpt = None,
     framework: FrameworkOpt = None,
     state: Annotated[str | None, typer.Option(
-        help="Filter by state: finished, interrupted, failed or running.")] = None,
+        help="Filter by state: finished, interrupted, failed, running or damaged.")] = None,
     as_json: JsonOpt = False,
     logs_dir: LogsDir = None,
 ) -> None:
-    """List runs, newest first: task, framework, start, steps, wall time, final mean return,
-    success rate and state ("failed": it stopped on an error or died without a summary).
+    """List runs, newest first: task, framework, first start, steps, wall time over all
+    sessions, final mean return, success rate and state ("failed": it stopped on an error or died
+    without a summary; "damaged": its files cannot be read, and a note says why).
 
     Example: lab runs --task cartpole --state finished
     """
@@ -42,3 +52,6 @@ def runs(
             figure(row.wall_time_s, "{:.1f} s"), figure(row.mean_return, "{:.1f}"),
             figure(row.success_rate, "{:.0%}"), row.state)
     out().print(shown)
+    for row in rows:
+        if row.problem:
+            err().print(f"note: {row.problem}", highlight=False, soft_wrap=True)

@@ -18,7 +18,7 @@ from labcli.envs.cuda_graph import GraphedStep
 from labcli.envs.render.scene import SceneRenderer
 from labcli.envs.sim import default_backend, make_sim
 from labcli.envs.spec import TaskSpec
-from labcli.errors import LabError
+from labcli.errors import LabError, first_line
 
 UNSTABLE = "unstable"
 
@@ -193,16 +193,32 @@ class LabVecEnv(gym.vector.VectorEnv):
             "episode_terms": self.episode_terms.clone(), "generator": self.generator.get_state(),
         }
 
-    def set_state(self, state: dict[str, torch.Tensor]) -> None:
-        targets = {"qpos": self.sim.qpos, "qvel": self.sim.qvel, "ctrl": self.sim.ctrl,
-                   "episode_length": self.episode_length, "episode_return": self.episode_return,
-                   "episode_terms": self.episode_terms}
-        for name, target in targets.items():  # all checked before any is changed
-            if tuple(state[name].shape) != tuple(target.shape):
-                raise LabError(f"saved env state '{name}' has shape {tuple(state[name].shape)}, "
-                               f"this env {tuple(target.shape)}",
+    def _state_targets(self) -> dict[str, torch.Tensor]:
+        return {"qpos": self.sim.qpos, "qvel": self.sim.qvel, "ctrl": self.sim.ctrl,
+                "episode_length": self.episode_length, "episode_return": self.episode_return,
+                "episode_terms": self.episode_terms}
+
+    def check_state(self, state: Any) -> None:
+        """Raise a LabError unless `state` is one `get_state` of this env could have returned:
+        checked before a resumed run writes anything, so a damaged file cannot fail it later."""
+        if not isinstance(state, dict):
+            raise LabError(f"saved env state is a {type(state).__name__}, not a mapping")
+        for name, target in self._state_targets().items():
+            value = state.get(name)
+            if not isinstance(value, torch.Tensor) or tuple(value.shape) != tuple(target.shape):
+                shown = tuple(value.shape) if isinstance(value, torch.Tensor) else repr(value)
+                raise LabError(f"saved env state '{name}' is {shown}, this env's "
+                               f"{tuple(target.shape)}",
                                "resume with the num_envs and task the checkpoint was trained with")
-        for name, target in targets.items():
+        try:
+            torch.Generator(self.device).set_state(state.get("generator"))
+        except (TypeError, RuntimeError) as exc:
+            raise LabError(f"saved env state's random generator is damaged: {first_line(exc)}"
+                           ) from None
+
+    def set_state(self, state: dict[str, torch.Tensor]) -> None:
+        self.check_state(state)  # all checked before any is changed
+        for name, target in self._state_targets().items():
             target.copy_(state[name])
         self.generator.set_state(state["generator"])
         self.task.update()

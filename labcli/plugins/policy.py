@@ -4,10 +4,23 @@ normalizer inside, so that what is played and exported is exactly what was train
 from __future__ import annotations
 
 import contextlib
+import io
+import pickle
 from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
 
 import torch
 from torch import nn
+
+from labcli import files
+from labcli.errors import LabError, first_line
+
+# A checkpoint larger than this holds no policy-sized network.
+CHECKPOINT_LIMIT = 2 << 30
+# Nor a network with more parameters: a damaged size (10^7 units a layer) must be refused before
+# the allocation that would exhaust memory.
+MAX_PARAMETERS = 200_000_000
 
 
 class ObsNormalizer(nn.Module):
@@ -52,3 +65,33 @@ def one_torch_thread(device: str) -> Iterator[None]:
         yield
     finally:
         torch.set_num_threads(previous)
+
+
+def read_torch_file(path: Path, device: str = "cpu", what: str = "checkpoint") -> Any:
+    """What `torch.save` wrote at `path`, read as data: a regular file of bounded size, loaded
+    with `weights_only=True` (tensors and plain containers; a pickled object is refused, never
+    run). Anything else is a LabError naming the file."""
+    try:
+        data = files.read_bytes(path, CHECKPOINT_LIMIT)
+        return torch.load(io.BytesIO(data), map_location=device, weights_only=True)
+    except files.Unreadable as exc:
+        raise LabError(f"{what} {path} {exc}", "pick another checkpoint") from None
+    except (RuntimeError, EOFError, ValueError, pickle.UnpicklingError) as exc:
+        raise LabError(f"{what} {path} is not a readable torch file: {first_line(exc)}",
+                       "pick another checkpoint") from None
+
+
+def check_mlp(checkpoint: Path, inputs: int, hidden: Any, outputs: int) -> list[int]:
+    """The hidden layer sizes a checkpoint describes, checked before anything is allocated:
+    positive integers, and a network of at most `MAX_PARAMETERS` parameters."""
+    if not isinstance(hidden, list) or not all(
+            isinstance(n, int) and not isinstance(n, bool) and n > 0 for n in hidden):
+        raise LabError(f"checkpoint {checkpoint.name} describes hidden layers {hidden!r}, not a "
+                       "list of positive sizes", "the checkpoint is damaged; pick another")
+    sizes = [inputs, *hidden, outputs]
+    parameters = sum(a * b + b for a, b in zip(sizes, sizes[1:], strict=False))
+    if parameters > MAX_PARAMETERS:
+        raise LabError(f"checkpoint {checkpoint.name} describes a network of {parameters:,} "
+                       f"parameters (layers {sizes}), more than the {MAX_PARAMETERS:,} lab loads",
+                       "the checkpoint is damaged; pick another")
+    return hidden

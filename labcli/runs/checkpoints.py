@@ -114,9 +114,10 @@ def _read_manifest(path: Path) -> dict[str, Any]:
     """The manifest at `path`, or a ValueError saying why it is not one."""
     if path.is_symlink() or not path.is_file():
         raise ValueError("no manifest")
-    if path.stat().st_size > MAX_MANIFEST_BYTES:
-        raise ValueError("manifest too large")
-    data = json.loads(path.read_bytes())
+    try:
+        data = files.load_json(files.read_bytes(path, MAX_MANIFEST_BYTES))
+    except files.Unreadable as exc:
+        raise ValueError(str(exc)) from None
     entries = data.get("files") if isinstance(data, dict) else None
     if not isinstance(entries, dict) or not all(
             isinstance(e, dict) and isinstance(e.get("bytes"), int)
@@ -193,12 +194,11 @@ def find(value: str, logs_dir: Path, task: str, fw: FrameworkSpec) -> tuple[rund
 
 
 def check_run_matches(run: rundir.Run, task: str, framework: str) -> None:
-    manifest = run.manifest()
-    if manifest.get("task") != task or manifest.get("framework") != framework:
-        raise LabError(
-            f"run {run.dir} is a {manifest.get('framework')} run of '{manifest.get('task')}', "
-            f"not a {framework} run of '{task}'",
-            "pass a checkpoint of the same task and framework")
+    run_task, run_framework = run.identity()
+    if (run_task, run_framework) != (task, framework):
+        raise LabError(f"run {run.dir} is a {run_framework} run of '{run_task}', not a "
+                       f"{framework} run of '{task}'",
+                       "pass a checkpoint of the same task and framework")
 
 
 def agent_config(fw: FrameworkSpec, run: rundir.Run) -> Any:

@@ -13,6 +13,7 @@ from typing import Any
 import yaml
 from pydantic import BaseModel, ValidationError
 
+from labcli import files
 from labcli.envs.config import TaskConfig
 from labcli.envs.spec import TaskSpec
 from labcli.errors import LabError
@@ -34,9 +35,11 @@ def parse_set(items: Iterable[str]) -> dict[str, dict[str, Any]]:
             raise LabError(f"--set '{item}' is not SECTION.KEY=VALUE",
                            "e.g. --set agent.learning_rate=3e-4 or --set env.num_envs=32")
         try:
-            value = yaml.safe_load(raw) if raw.strip() else ""
-        except Exception:  # PyYAML raises more than YAMLError (e.g. ValueError for 2020-13-45)
-            value = raw
+            value = files.load_yaml(raw) if raw.strip() else ""
+        except files.TooLarge as exc:
+            raise LabError(f"--set {key}: the value {exc}") from None
+        except Exception:  # not YAML (PyYAML raises more than YAMLError, e.g. ValueError for
+            value = raw  # 2020-13-45): the string as written
         _set_path(out[section], section, path.split("."), value)
     return out
 
@@ -52,15 +55,12 @@ def _set_path(tree: dict[str, Any], section: str, keys: list[str], value: Any) -
 
 
 def load_file(path: Path) -> dict[str, dict[str, Any]]:
+    if not path.exists():
+        raise LabError(f"config file {path} does not exist")
     try:
-        data = yaml.safe_load(path.read_text()) or {}
-    except FileNotFoundError as exc:
-        raise LabError(f"config file {path} does not exist") from exc
-    except (OSError, UnicodeDecodeError) as exc:
-        reason = getattr(exc, "strerror", None) or exc
-        raise LabError(f"config file {path} cannot be read: {reason}", "pass a YAML file") from exc
-    except yaml.YAMLError as exc:
-        raise LabError(f"config file {path} is not valid YAML: {str(exc).splitlines()[0]}") from exc
+        data = files.load_yaml(files.read_text(path)) or {}
+    except files.Unreadable as exc:
+        raise LabError(f"config file {path} {exc}", "pass a YAML file") from None
     if not isinstance(data, dict) or set(data) - set(SECTIONS):
         raise LabError(f"config file {path} must be a mapping with keys 'env' and/or 'agent'")
     return {s: data.get(s) or {} for s in SECTIONS}

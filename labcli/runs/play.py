@@ -20,7 +20,7 @@ from labcli.errors import LabError
 from labcli.plugins import registry
 from labcli.plugins.framework import Checkpoint, Framework
 from labcli.plugins.policy import Policy
-from labcli.runs import checkpoints, config, rundir
+from labcli.runs import checkpoints, config, loading, rundir
 from labcli.runs import video as videos
 from labcli.runs.video import VideoSettings
 
@@ -60,9 +60,9 @@ def load(*, run_dir: Path | None = None, checkpoint: Path | None = None,
         run = rundir.open_run(run_dir)
     else:
         run = rundir.latest(logs_dir, task, framework)
-    manifest = run.manifest()
-    spec = registry.get_task(manifest["task"])
-    fw_spec = registry.get_framework(manifest["framework"])
+    task_name, framework_name = run.identity()
+    spec = registry.get_task(task_name)
+    fw_spec = registry.get_framework(framework_name)
     _, ckpt = checkpoints.find(str(checkpoint or run.dir), logs_dir, spec.name, fw_spec)
     layers = [run.params(rundir.ENV_PARAMS)]
     config.check_saved(spec.config_class, "env", run.dir / rundir.ENV_PARAMS, layers[0])
@@ -73,7 +73,7 @@ def load(*, run_dir: Path | None = None, checkpoint: Path | None = None,
     fw = fw_spec.load()
     env = make_env(spec, env_cfg, backend=CPU, device="cpu", seed=seed)
     try:
-        policy = fw.load_policy(ckpt.path, env, agent_cfg)
+        policy = loading.policy_of(fw, ckpt, env, agent_cfg)
     except BaseException:
         env.close()
         raise

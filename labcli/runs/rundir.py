@@ -13,8 +13,6 @@ from datetime import datetime
 from pathlib import Path
 from typing import Any
 
-import yaml
-
 from labcli import files
 from labcli.errors import LabError
 
@@ -29,6 +27,7 @@ EXPORTED = "exported"
 # others when it ends. A run whose process died without saying so reads as "failed".
 RUNNING, FINISHED, INTERRUPTED, FAILED = "running", "finished", "interrupted", "failed"
 STATES = (RUNNING, FINISHED, INTERRUPTED, FAILED)
+DAMAGED = "damaged"  # only in `lab runs`: a run whose run.json or summary.json cannot be read
 
 
 def default_logs_dir() -> Path:
@@ -58,8 +57,41 @@ def write_json(run_dir: Path, name: str, data: dict[str, Any]) -> None:
     write_atomic(run_dir, name, json.dumps(data, indent=2, sort_keys=False) + "\n")
 
 
-def read_json(path: Path) -> dict[str, Any]:
-    return json.loads(path.read_text())
+NUMBER = (int, float)
+# The fields of run.json and summary.json that lab reads, and the types they must have: a file
+# edited or damaged into another shape is refused by name, never a traceback further on.
+MANIFEST_FIELDS = {"task": str, "framework": str, "seed": int, "device": str, "backend": str,
+                   "num_envs": int, "started": str, "first_started": str, "pid": int,
+                   "host": str, "pid_started": (int, type(None)), "state": str, "versions": dict,
+                   "resumed_from": str, "sessions": list}
+SUMMARY_FIELDS = {"state": str, "iterations": int, "steps": int, "wall_time_s": NUMBER,
+                  "total_wall_time_s": NUMBER, "mean_return": (*NUMBER, type(None)),
+                  "mean_episode_length": (*NUMBER, type(None)),
+                  "success_rate": (*NUMBER, type(None)), "checkpoint": (str, type(None)),
+                  "finished": str, "error": str, "signal": int}
+
+
+def read_json(path: Path, fields: dict[str, Any]) -> dict[str, Any]:
+    """A JSON object whose `fields`, where present, have their types; a LabError naming the
+    file and what is wrong otherwise."""
+    try:
+        data = files.load_json(files.read_bytes(path))
+    except files.Unreadable as exc:
+        raise LabError(f"{path} {exc}", "restore or delete the file") from None
+    if not isinstance(data, dict):
+        raise LabError(f"{path} is damaged: it holds a JSON {type(data).__name__}, not an "
+                       "object", "restore or delete the file")
+    for key, types in fields.items():
+        value = data.get(key)
+        if key in data and (not isinstance(value, types) or isinstance(value, bool)
+                            and bool not in _flat(types)):
+            raise LabError(f"{path} is damaged: its {key!r} is {value!r}",
+                           "restore or delete the file")
+    return data
+
+
+def _flat(types: Any) -> tuple[type, ...]:
+    return types if isinstance(types, tuple) else (types,)
 
 
 @dataclass
@@ -72,25 +104,32 @@ class Run:
 
     def manifest(self) -> dict[str, Any]:
         path = self.dir / MANIFEST
-        if not path.is_file():
+        if not path.exists():
             raise LabError(f"{self.dir} is not a lab run: it has no {MANIFEST}",
                            "pass a directory made by `lab train`")
-        try:
-            return read_json(path)
-        except json.JSONDecodeError as exc:
-            raise LabError(f"{path} is not valid JSON: {exc}") from exc
+        return read_json(path, MANIFEST_FIELDS)
+
+    def identity(self) -> tuple[str, str]:
+        """The run's task and framework, as its run.json records them."""
+        manifest = self.manifest()
+        task, framework = manifest.get("task"), manifest.get("framework")
+        if task is None or framework is None:
+            raise LabError(f"{self.dir / MANIFEST} is damaged: it names no "
+                           f"{'task' if task is None else 'framework'}",
+                           "restore or delete the file")
+        return task, framework
 
     def params(self, which: str) -> dict[str, Any]:
         path = self.dir / which
+        if not path.exists():
+            raise LabError(f"{path} is missing", "the run dir is incomplete")
         try:
-            data = yaml.safe_load(path.read_text())
-        except FileNotFoundError as exc:
-            raise LabError(f"{path} is missing", "the run dir is incomplete") from exc
-        except yaml.YAMLError as exc:
-            first = str(exc).splitlines()[0]
-            raise LabError(f"{path} is not valid YAML: {first}", "fix or restore the file") from exc
+            data = files.load_yaml(files.read_text(path))
+        except files.Unreadable as exc:
+            raise LabError(f"{path} {exc}", "fix or restore the file") from None
         if not isinstance(data, dict):
-            raise LabError(f"{path} must hold a mapping of settings, not {type(data).__name__}")
+            raise LabError(f"{path} must hold a mapping of settings, not {type(data).__name__}",
+                           "fix or restore the file")
         return data
 
     def update_manifest(self, **changes: Any) -> None:
@@ -100,12 +139,9 @@ class Run:
 
     def summary(self) -> dict[str, Any] | None:
         path = self.dir / SUMMARY
-        if not path.is_file():
+        if not path.exists():
             return None
-        try:
-            return read_json(path)
-        except json.JSONDecodeError as exc:
-            raise LabError(f"{path} is not valid JSON: {exc}") from exc
+        return read_json(path, SUMMARY_FIELDS)
 
 
 def run_state(run: Run) -> str:
@@ -136,9 +172,12 @@ def _process_start(pid: int) -> int | None:
     return int(stat[stat.rindex(")") + 2:].split()[19])
 
 
+PID_MAX = 1 << 22  # Linux's largest pid_max
+
+
 def _alive(manifest: dict[str, Any]) -> bool:
     pid = manifest.get("pid")
-    if not isinstance(pid, int):
+    if not isinstance(pid, int) or not 0 < pid <= PID_MAX:
         return False
     if manifest.get("host") not in (None, socket.gethostname()):
         return True  # on another machine: cannot be checked from here, trust the record
@@ -148,8 +187,9 @@ def _alive(manifest: dict[str, Any]) -> bool:
         return False
     except PermissionError:
         pass  # exists, owned by another user
-    started = manifest.get("pid_started")
-    return started is None or _process_start(pid) in (started, None)
+    # Where the OS tells when a process started, a record without that time cannot be told
+    # from a later process that reuses the pid (pid 1 always exists): not this run's.
+    return _process_start(pid) in (manifest.get("pid_started"), None)
 
 
 def check_writable(path: Path) -> None:
@@ -195,11 +235,18 @@ def create(logs_dir: Path, framework: str, task: str, name: str | None = None) -
 
 
 def find(logs_dir: Path, task: str | None = None, framework: str | None = None) -> list[Run]:
-    """Runs under `logs_dir`, newest first, optionally filtered."""
-    runs = []
-    for manifest in logs_dir.glob(f"{framework or '*'}/{task or '*'}/*/{MANIFEST}"):
-        runs.append(Run(manifest.parent))
-    return sorted(runs, key=lambda r: (r.dir.name, r.dir.stat().st_mtime), reverse=True)
+    """Runs under `logs_dir`, newest first (by the time stamp in their names, then by when they
+    last changed), optionally filtered."""
+    runs = [Run(manifest.parent)
+            for manifest in logs_dir.glob(f"{framework or '*'}/{task or '*'}/*/{MANIFEST}")]
+    return sorted(runs, key=lambda r: (r.dir.name, _mtime(r.dir)), reverse=True)
+
+
+def _mtime(path: Path) -> float:
+    try:
+        return path.stat().st_mtime
+    except OSError:  # removed meanwhile
+        return 0.0
 
 
 def latest(logs_dir: Path, task: str | None = None, framework: str | None = None) -> Run:
@@ -228,12 +275,13 @@ class RunRow:
     dir: Path
     task: str
     framework: str
-    started: str
+    started: str  # the run's first start: a resumed run keeps it
     state: str
     steps: int | None = None
-    wall_time_s: float | None = None
+    wall_time_s: float | None = None  # over all its sessions
     mean_return: float | None = None
     success_rate: float | None = None
+    problem: str | None = None  # why a damaged run's files cannot be read
 
     def as_dict(self) -> dict[str, Any]:
         return {**self.__dict__, "dir": str(self.dir)}
@@ -250,24 +298,37 @@ def run_name(run_dir: Path) -> str:
 
 def table(logs_dir: Path, task: str | None = None, framework: str | None = None,
           state: str | None = None) -> list[RunRow]:
-    """Every run under `logs_dir`, newest first, filtered by task, framework and state."""
+    """Every run under `logs_dir`, newest first, filtered by task, framework and state. A run
+    whose files cannot be read is a row of its own, state "damaged", saying which file and why:
+    it never hides the others."""
     rows = []
     for run in find(logs_dir, task, framework):
         try:
-            manifest = run.manifest()
-            summary = run.summary()
-        except (LabError, json.JSONDecodeError, OSError):
-            continue  # a run dir being written or damaged is not a row
-        row = RunRow(dir=run.dir, task=manifest.get("task", "?"),
-                     framework=manifest.get("framework", "?"),
-                     started=manifest.get("started", ""), state=run_state(run))
-        if summary is not None:
-            row.steps, row.wall_time_s = summary.get("steps"), summary.get("wall_time_s")
-            row.mean_return, row.success_rate = (summary.get("mean_return"),
-                                                 summary.get("success_rate"))
-        elif row.state == RUNNING and row.started:
-            row.wall_time_s = round(time.time() - datetime.fromisoformat(row.started)
-                                    .timestamp(), 1)
+            row = _row(run)
+        except LabError as exc:
+            row = RunRow(dir=run.dir, task=run.dir.parent.name,
+                         framework=run.dir.parent.parent.name, started="", state=DAMAGED,
+                         problem=str(exc))
         if state is None or row.state == state:
             rows.append(row)
     return rows
+
+
+def _row(run: Run) -> RunRow:
+    manifest, summary = run.manifest(), run.summary()
+    started = manifest.get("first_started", manifest.get("started", ""))
+    try:
+        since = datetime.fromisoformat(started).timestamp() if started else None
+    except ValueError:
+        raise LabError(f"{run.dir / MANIFEST} is damaged: its start time is {started!r}",
+                       "restore or delete the file") from None
+    row = RunRow(dir=run.dir, task=manifest.get("task", "?"),
+                 framework=manifest.get("framework", "?"), started=started,
+                 state=run_state(run))
+    if summary is not None:
+        row.steps = summary.get("steps")
+        row.wall_time_s = summary.get("total_wall_time_s", summary.get("wall_time_s"))
+        row.mean_return, row.success_rate = summary.get("mean_return"), summary.get("success_rate")
+    elif row.state == RUNNING and since is not None:
+        row.wall_time_s = round(time.time() - since, 1)
+    return row

@@ -27,7 +27,7 @@ from labcli.errors import LabError, TrainingDiverged
 from labcli.plugins import registry
 from labcli.plugins.config import AgentConfig
 from labcli.plugins.framework import Checkpoint, Framework
-from labcli.runs import config, interrupt, rundir, snapshot
+from labcli.runs import config, interrupt, loading, rundir, snapshot
 from labcli.runs import video as videos
 from labcli.runs.context import RunContext
 from labcli.runs.plan import TrainPlan
@@ -75,9 +75,9 @@ def run(plan: TrainPlan, stop: interrupt.StopRequest, console: Console,
     try:
         resume_state = None
         if plan.resume is not None:
-            # A corrupt or mismatched checkpoint fails here, before anything is written.
-            fw.load_policy(plan.resume.path, env, agent_cfg)
-            resume_state = _resume_state(run_, plan.resume, env_cfg, console)
+            # A corrupt, mismatched or NaN checkpoint fails here, before anything is written.
+            loading.policy_of(fw, plan.resume, env, agent_cfg)
+            resume_state = _resume_state(run_, plan.resume, env, env_cfg, console)
         wrappers.validate(_pipeline(fw, agent_cfg, plan.video, None), fw.name)
         if plan.video is not None:
             env.render()  # no GL, or an env that cannot render, fails before a run dir exists
@@ -120,22 +120,30 @@ def _versions(fw_provider: registry.Provider) -> dict[str, str]:
     return out
 
 
-def _resume_state(run: rundir.Run, resume: Checkpoint, env_cfg: TaskConfig,
+def _resume_state(run: rundir.Run, resume: Checkpoint, env: Any, env_cfg: TaskConfig,
                   console: Console) -> dict[str, Any] | None:
     """The env and generator state saved with `resume`, or None (with a note saying what that
-    changes) when there is none or it cannot apply."""
-    state = snapshot.load(snapshot.path_of(run.dir, resume.iteration))
+    changes) when there is none or it cannot apply; a LabError when it is damaged."""
+    path = snapshot.path_of(run.dir, resume.iteration)
+    state = snapshot.load(path)
     if state is None:
         console.print(f"note: {resume.path.name} has no saved env and random-generator state; "
                       "the resumed run starts new episodes", highlight=False)
-    elif state["env"] is None:
+        return None
+    saved = state["env"]
+    if saved is None:
         console.print(f"note: the env of {resume.path.name} cannot save its episodes; the "
                       "resumed run starts new ones", highlight=False)
-    elif state["env"]["qpos"].shape[0] != env_cfg.num_envs:
-        console.print(f"note: {resume.path.name} was saved with {state['env']['qpos'].shape[0]} "
-                      f"envs, not {env_cfg.num_envs}; the resumed run starts new episodes",
-                      highlight=False)
+        return state
+    qpos = saved.get("qpos")
+    if isinstance(qpos, torch.Tensor) and qpos.ndim == 2 and qpos.shape[0] != env_cfg.num_envs:
+        console.print(f"note: {resume.path.name} was saved with {qpos.shape[0]} envs, not "
+                      f"{env_cfg.num_envs}; the resumed run starts new episodes", highlight=False)
         return None
+    try:
+        env.check_state(saved)
+    except LabError as exc:
+        raise LabError(f"resume state {path}: {exc.message}", exc.hint) from None
     return state
 
 

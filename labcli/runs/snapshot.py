@@ -4,7 +4,6 @@ Saved as `state_<iteration>.pt` beside the checkpoint of that iteration."""
 
 from __future__ import annotations
 
-import pickle
 import random
 from collections.abc import Callable
 from pathlib import Path
@@ -13,7 +12,8 @@ from typing import Any
 import numpy as np
 import torch
 
-from labcli.errors import LabError
+from labcli.errors import LabError, first_line
+from labcli.plugins.policy import read_torch_file
 
 PREFIX = "state_"
 
@@ -59,13 +59,35 @@ def writer(iteration: int, state: dict[str, Any]) -> Callable[[Path], None]:
 
 
 def load(path: Path) -> dict[str, Any] | None:
-    """The saved state, None when the checkpoint has none (written before lab saved it)."""
-    if not path.is_file():
+    """The saved state, checked to be what `rng_state` and the env wrote; None when the
+    checkpoint has none (written before lab saved it)."""
+    if not path.exists():
         return None
+    state = read_torch_file(path, what="resume state")
     try:
-        return torch.load(path, map_location="cpu", weights_only=True)
-    except (OSError, RuntimeError, EOFError, pickle.UnpicklingError) as exc:
-        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        raise LabError(f"resume state {path} cannot be read: {first}",
+        _check(state)
+    except (TypeError, ValueError, KeyError, RuntimeError, IndexError, AttributeError) as exc:
+        raise LabError(f"resume state {path} is damaged: {first_line(exc)}",
                        "delete it to resume without it (new episodes, new random numbers)"
-                       ) from exc
+                       ) from None
+    return state
+
+
+def _check(state: Any) -> None:
+    """Raises what a damaged state would raise later, now: the generators' states are tried on
+    fresh generators of each kind."""
+    if not isinstance(state, dict):
+        raise TypeError(f"it holds a {type(state).__name__}")
+    for key in ("iteration", "steps"):
+        if not isinstance(state.get(key), int) or state[key] < 0:
+            raise ValueError(f"its {key} is {state.get(key)!r}")
+    if state.get("env") is not None and not isinstance(state["env"], dict):
+        raise TypeError(f"its env state is a {type(state['env']).__name__}")
+    rng = state.get("rng")
+    if not isinstance(rng, dict):
+        raise TypeError("it has no random generator states")
+    torch.Generator().set_state(rng["torch"])
+    n, p = rng["numpy"], rng["python"]
+    np.random.RandomState().set_state((n["kind"], n["keys"].numpy().astype(np.uint32), n["pos"],
+                                       n["has_gauss"], n["gauss"]))
+    random.Random().setstate((p["version"], tuple(p["internal"]), p["gauss_next"]))

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import contextlib
 import io
-import pickle
 from pathlib import Path
 from typing import Any
 
@@ -18,7 +17,13 @@ from lab_rsl_rl.adapter import OBS_GROUP, RslRlVecEnv
 from lab_rsl_rl.config import RslRlPpoConfig
 from labcli.errors import LabError, first_line
 from labcli.plugins.framework import Framework, TrainContext
-from labcli.plugins.policy import ObsNormalizer, Policy, one_torch_thread
+from labcli.plugins.policy import (
+    ObsNormalizer,
+    Policy,
+    check_mlp,
+    one_torch_thread,
+    read_torch_file,
+)
 
 # Checkpoints are RSL-RL's own dict (runner.save); lab adds what load_policy needs to rebuild the
 # actor without the run's config under this key of its "infos".
@@ -163,9 +168,10 @@ class RslRlFramework(Framework):
                 raise LabError(f"checkpoint {checkpoint.name} has {what} size {size}, but the env"
                                f" '{env.task_spec.name}' has {current}",
                                "use a checkpoint trained on this task")
+        kwargs = _actor_kwargs(checkpoint, info["actor"])
+        check_mlp(checkpoint, obs_size, kwargs.get("hidden_dims"), action_size)
         dummy = TensorDict({OBS_GROUP: torch.zeros(1, obs_size)}, batch_size=[1])
-        model = MLPModel(dummy, {"actor": [OBS_GROUP]}, "actor", action_size,
-                         **_actor_kwargs(checkpoint, info["actor"]))
+        model = MLPModel(dummy, {"actor": [OBS_GROUP]}, "actor", action_size, **kwargs)
         try:
             model.load_state_dict(saved["actor_state_dict"])
         except (KeyError, RuntimeError) as exc:
@@ -179,6 +185,9 @@ def _actor_kwargs(checkpoint: Path, actor: dict[str, Any]) -> dict[str, Any]:
     """MLPModel's arguments from the saved actor config. RSL-RL resolves class names to any
     importable callable, so only the classes this plugin writes are accepted: loading a
     checkpoint must not run code named in it."""
+    if not isinstance(actor, dict):
+        raise LabError(f"checkpoint {checkpoint.name} describes its actor as {actor!r}",
+                       "the checkpoint is damaged; pick another")
     kwargs = dict(actor)
     distribution = kwargs.get("distribution_cfg") or {}
     if (kwargs.pop("class_name", None) != MODEL
@@ -205,12 +214,7 @@ def _normalizer(model: nn.Module) -> ObsNormalizer | None:
 
 
 def _read_checkpoint(path: Path, device: str) -> dict[str, Any]:
-    # weights_only: a checkpoint is tensors and plain data; never run pickled code from one.
-    try:
-        saved = torch.load(path, map_location=device, weights_only=True)
-    except (OSError, RuntimeError, EOFError, pickle.UnpicklingError) as exc:
-        raise LabError(f"checkpoint {path} is not a loadable RSL-RL model: {first_line(exc)}",
-                       "pick another checkpoint with --checkpoint") from exc
+    saved = read_torch_file(path, device)  # data only: never runs pickled code
     if not isinstance(saved, dict):
         raise LabError(f"checkpoint {path} is not a loadable RSL-RL model: it holds a "
                        f"{type(saved).__name__}", "pick another checkpoint with --checkpoint")

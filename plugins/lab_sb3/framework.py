@@ -28,10 +28,11 @@ from torch import nn
 
 from lab_sb3.config import Sb3PPOConfig
 from lab_sb3.plugin import ADAPTER, VEC_NORMALIZE
+from labcli import files
 from labcli.envs.wrappers import Step
 from labcli.errors import LabError, first_line
 from labcli.plugins.framework import Framework, TrainContext
-from labcli.plugins.policy import ObsNormalizer, Policy, one_torch_thread
+from labcli.plugins.policy import CHECKPOINT_LIMIT, ObsNormalizer, Policy, one_torch_thread
 
 ACTIVATIONS = {"tanh": nn.Tanh, "relu": nn.ReLU, "elu": nn.ELU}
 # What lab reads from SB3's zip: tensors (torch.load, weights_only) and plain JSON numbers.
@@ -156,7 +157,7 @@ def _not_loadable(checkpoint: Path, why: str) -> LabError:
 def read_checkpoint(path: Path, device: str) -> dict[str, Any]:
     """The tensors and counters of SB3's zip, read without unpickling anything."""
     try:
-        with zipfile.ZipFile(path) as archive:
+        with zipfile.ZipFile(io.BytesIO(files.read_bytes(path, CHECKPOINT_LIMIT))) as archive:
             members = {info.filename: info for info in archive.infolist()}
             for name in (POLICY, OPTIMIZER, DATA):
                 if name not in members:
@@ -167,6 +168,8 @@ def read_checkpoint(path: Path, device: str) -> dict[str, Any]:
             saved = {name: torch.load(io.BytesIO(archive.read(name)), map_location=device,
                                       weights_only=True) for name in (POLICY, OPTIMIZER)}
             data = json.loads(archive.read(DATA))
+    except files.Unreadable as exc:
+        raise _not_loadable(path, str(exc)) from None
     except (zipfile.BadZipFile, OSError, EOFError, RuntimeError, ValueError,
             pickle.UnpicklingError) as exc:
         raise _not_loadable(path, f"{type(exc).__name__}: {first_line(exc)}") from exc
@@ -231,7 +234,7 @@ def read_normalizer(path: Path) -> dict[str, Any]:
                        f"normalize_obs, but its normalizer {path.name} is missing",
                        "pick another checkpoint, or restore the file")
     try:
-        data = json.loads(path.read_bytes())
+        data = files.load_json(files.read_bytes(path))
         out = {key: float(data[key]) for key in ("clip_obs", "epsilon")}
         for key in ("obs_rms", "ret_rms"):
             rms = RunningMeanStd(shape=np.shape(data[key]["mean"]))
@@ -242,7 +245,10 @@ def read_normalizer(path: Path) -> dict[str, Any]:
                                                        and (rms.var >= 0).all()):
                 raise ValueError(f"{key} has mismatched or non-finite statistics")
             out[key] = rms
-    except (OSError, ValueError, TypeError, KeyError, UnicodeDecodeError) as exc:
+    except files.Unreadable as exc:
+        raise LabError(f"normalizer {path} {exc}", "the checkpoint is damaged; pick another"
+                       ) from None
+    except (ValueError, TypeError, KeyError, AttributeError) as exc:
         raise LabError(f"normalizer {path} cannot be read: {type(exc).__name__}: "
                        f"{first_line(exc)}", "the checkpoint is damaged; pick another") from exc
     return out

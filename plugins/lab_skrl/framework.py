@@ -8,7 +8,6 @@ preprocessors) plus a `lab` entry with the sizes and network shape needed to reb
 
 from __future__ import annotations
 
-import pickle
 from pathlib import Path
 from typing import Any
 
@@ -26,7 +25,13 @@ from lab_skrl.adapter import SkrlEnv
 from lab_skrl.config import SkrlPPOConfig
 from labcli.errors import LabError, first_line
 from labcli.plugins.framework import Framework, TrainContext
-from labcli.plugins.policy import ObsNormalizer, Policy, one_torch_thread
+from labcli.plugins.policy import (
+    ObsNormalizer,
+    Policy,
+    check_mlp,
+    one_torch_thread,
+    read_torch_file,
+)
 
 ACTIVATIONS = {"tanh": nn.Tanh, "relu": nn.ReLU, "elu": nn.ELU}
 META = "lab"  # checkpoint entry with what lab needs besides skrl's modules
@@ -160,8 +165,10 @@ class SkrlFramework(Framework):
         saved = read_checkpoint(checkpoint)
         meta = saved[META]
         _check_sizes(checkpoint, meta, env)
-        actor = Actor(env.single_observation_space, env.single_action_space, "cpu",
-                      meta["hidden_sizes"], meta["activation"], 0.0)
+        hidden = check_mlp(checkpoint, meta["observation_size"], meta["hidden_sizes"],
+                           meta["action_size"])
+        actor = Actor(env.single_observation_space, env.single_action_space, "cpu", hidden,
+                      meta["activation"], 0.0)
         try:
             actor.load_state_dict(saved["policy"])
         except (KeyError, RuntimeError) as exc:
@@ -217,13 +224,7 @@ def _pop_tracking(agent: PPO) -> dict[str, float]:
 
 def read_checkpoint(path: Path) -> dict[str, Any]:
     """The saved dict, or a LabError for a missing, corrupt or foreign file."""
-    if not path.is_file():
-        raise LabError(f"checkpoint {path} does not exist", "pick another with --checkpoint")
-    try:
-        saved = torch.load(path, map_location="cpu", weights_only=True)
-    except (OSError, RuntimeError, EOFError, pickle.UnpicklingError, ValueError) as exc:
-        raise LabError(f"checkpoint {path} is not a loadable torch file: {first_line(exc)}",
-                       "pick another checkpoint with --checkpoint") from exc
+    saved = read_torch_file(path)  # data only: never runs pickled code
     meta = saved.get(META) if isinstance(saved, dict) else None
     if not isinstance(meta, dict) or not set(meta) >= META_KEYS or "policy" not in saved:
         raise LabError(f"checkpoint {path} is not a lab skrl checkpoint",
