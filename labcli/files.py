@@ -61,7 +61,12 @@ def real_dir(path: Path, create: bool = True, below: Path | None = None) -> Path
     """`path` as a directory that is no link (created, with its missing parents, when `create`):
     a link in a shared run dir would send lab's writes wherever it points. With `below`, every
     directory between `below` and `path` is checked so, not only `path`."""
-    if below is not None and path != below:
+    if below is not None and path == below:
+        if not path.is_dir():  # a run dir is never re-created: lab would leave a husk
+            raise LabError(f"{path} no longer exists: it was deleted or moved while lab used it",
+                           "nothing more was written")
+        return path
+    if below is not None:
         real_dir(path.parent, create, below)
     if path.is_symlink():
         raise LabError(f"{path} is a symbolic link; lab does not write through links in a run "

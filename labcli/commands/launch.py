@@ -17,10 +17,8 @@ def _interrupted(stop: interrupt.StopRequest) -> None:
 
 def main() -> None:
     with interrupt.deferred(interrupt.startup) as stop:
-        try:
-            from labcli.commands.app import main as cli_main
-        except KeyboardInterrupt:  # a second signal while importing
-            _interrupted(stop)
+        from labcli.commands.app import main as cli_main
+
         if stop.requested:
             _interrupted(stop)
         cli_main()

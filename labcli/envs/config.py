@@ -4,7 +4,7 @@ loading plugins imports no pydantic."""
 
 from __future__ import annotations
 
-from typing import Any, Literal
+from typing import Any, ClassVar, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
@@ -14,6 +14,9 @@ class TaskConfig(BaseModel):
 
     # NaN and inf are never meant: they would only surface later as a diverged run.
     model_config = ConfigDict(extra="forbid", validate_assignment=True, allow_inf_nan=False)
+    # The keys a resume may change: how many envs step (they start new episodes) and how; not
+    # the task itself (rewards, episodes, physics), which the checkpoint was trained on.
+    resumable: ClassVar[frozenset[str]] = frozenset({"num_envs", "threads", "cuda_graph"})
 
     # The upper bounds are far beyond any use; past them a typo would exhaust memory or overflow
     # the step count instead of failing at once.
@@ -33,6 +36,7 @@ class GymConfig(BaseModel):
     """The env settings of a gymnasium task (`--set env.KEY=VALUE`)."""
 
     model_config = ConfigDict(extra="forbid", validate_assignment=True)
+    resumable: ClassVar[frozenset[str]] = frozenset({"num_envs", "vectorization"})
 
     num_envs: int = Field(16, gt=0, description="parallel environments (rl_zoo3's 16)")
     vectorization: Literal["sync", "async"] = Field(

@@ -4,7 +4,11 @@ loading plugins imports no pydantic."""
 
 from __future__ import annotations
 
+from typing import ClassVar
+
 from pydantic import BaseModel, ConfigDict, Field
+
+from labcli.errors import LabError
 
 
 class AgentConfig(BaseModel):
@@ -12,7 +16,35 @@ class AgentConfig(BaseModel):
 
     # NaN and inf are never meant: they would only surface later as a diverged run.
     model_config = ConfigDict(extra="forbid", validate_assignment=True, allow_inf_nan=False)
+    # The keys a resume (`lab train --checkpoint`) may change; the framework applies them over
+    # what the checkpoint restores (`TrainContext.changed`). A subclass adds its own, e.g. the
+    # learning rate; the network's shape, the rollout's length, the seed can never change.
+    resumable: ClassVar[frozenset[str]] = frozenset({"max_iterations", "save_interval"})
 
     max_iterations: int = Field(100, gt=0, description="rollout + update cycles in total")
     save_interval: int = Field(50, gt=0, description="iterations between checkpoints")
     seed: int = Field(0, ge=0, lt=2**32, description="seeds the env, torch, NumPy and Python")
+
+    def check(self, num_envs: int) -> None:
+        """Refuse settings that cannot work with `num_envs` envs, before anything is built: a
+        LabError naming the key (more mini-batches than samples, say). The default checks
+        nothing."""
+
+    def memory(self, num_envs: int, observations: int, actions: int) -> dict[str, int]:
+        """Bytes the learner will allocate, by the setting that decides them
+        ({"agent.n_steps": ..., "agent.net_arch": ...}): lab refuses a run that cannot fit in
+        the memory left, naming the largest. `mlp_bytes` and `FLOAT` help. Default: none."""
+        return {}
+
+
+FLOAT = 4  # bytes of a float32
+
+
+def mlp_bytes(sizes: list[int]) -> int:
+    """An MLP's parameters, with their gradients and Adam's two moments: 4 floats each."""
+    return 4 * FLOAT * sum(a * b + b for a, b in zip(sizes, sizes[1:], strict=False))
+
+
+def too_many_batches(key: str, batches: int, samples: int) -> LabError:
+    return LabError(f"{key}={batches} splits {samples:,} samples per iteration into more "
+                    "mini-batches than samples", f"use at most {samples:,}, or more envs or steps")

@@ -124,6 +124,9 @@ class TrainContext(abc.ABC):
     device: str  # torch device of the env and the learner
     writer: Any  # the run's TensorBoard SummaryWriter, for the library's own figures
     resume: Checkpoint | None  # the checkpoint a resumed run starts from
+    # The agent settings this resume changed (e.g. {"learning_rate"}): the config has their new
+    # values; apply them over what the checkpoint restores (an optimizer's saved learning rate).
+    changed: frozenset[str]
     iteration: int  # iterations done, counted on from a resumed checkpoint
     steps: int  # env steps done, likewise
     # Figures whose names are the TensorBoard tags of labcli.envs.metrics.

@@ -183,6 +183,8 @@ def _annotation_at(annotation: Any, depth: int) -> Any:
 
 
 def _type_name(annotation: Any) -> str:
+    if typing.get_origin(annotation) is typing.Annotated:  # PositiveInt and the like
+        return _type_name(typing.get_args(annotation)[0])
     if typing.get_origin(annotation) is typing.Literal:
         return "one of " + ", ".join(repr(a) for a in typing.get_args(annotation))
     return getattr(annotation, "__name__", None) or str(annotation).replace("typing.", "")
@@ -212,6 +214,30 @@ def resolve(spec: TaskSpec, fw: FrameworkSpec, *, base: tuple[dict, dict] | None
     env_cfg = build(spec.config_class, "env", [layer["env"] for layer in layers])
     agent_cfg = build(fw.agent_config_class, "agent", [layer["agent"] for layer in layers])
     return env_cfg, agent_cfg
+
+
+def changes(saved: BaseModel, now: BaseModel, section: str) -> dict[str, tuple[Any, Any]]:
+    """The settings of `section` that differ between a run's saved config and the resolved one:
+    {"agent.learning_rate": (old, new), ...}."""
+    old, new = saved.model_dump(mode="json"), now.model_dump(mode="json")
+    return {f"{section}.{key}": (old.get(key), value) for key, value in new.items()
+            if old.get(key) != value}
+
+
+def check_resumable(checkpoint: str, changed: Mapping[str, tuple[Any, Any]],
+                    env_model: type[BaseModel], agent_model: type[BaseModel]) -> None:
+    """Refuse, before anything is written, a resume that changes what its checkpoint holds."""
+    allowed = {**{f"env.{k}": True for k in getattr(env_model, "resumable", ())},
+               **{f"agent.{k}": True for k in getattr(agent_model, "resumable", ())}}
+    refused = [key for key in changed if key not in allowed]
+    if refused:
+        key = refused[0]
+        old, new = changed[key]
+        also = f" (and {', '.join(refused[1:])})" if refused[1:] else ""
+        raise LabError(f"resuming {checkpoint} cannot change {key} ({old!r} -> {new!r}){also}: "
+                       "the checkpoint was trained with it",
+                       f"a resume may change {', '.join(sorted(allowed))}; start a new run "
+                       "(no --checkpoint) to change the others")
 
 
 def to_yaml(model: BaseModel) -> str:

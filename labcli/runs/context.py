@@ -45,10 +45,12 @@ class RunContext(TrainContext):
     resume_state: dict[str, Any] | None = None
     stop: interrupt.StopRequest = field(default_factory=interrupt.StopRequest)
     mujoco_warnings: mjwarnings.WarningCounter = field(default_factory=mjwarnings.WarningCounter)
+    changed: frozenset[str] = frozenset()
     iteration: int = 0
     steps: int = 0
     last_stats: dict[str, float] = field(default_factory=dict)
     saved_iteration: int = -1
+    saved_steps: int = 0
     # The env and random generators at the end of the last iteration, saved with its checkpoint.
     _boundary: dict[str, Any] | None = None
     _told_mujoco_warnings: bool = False
@@ -60,7 +62,7 @@ class RunContext(TrainContext):
         if self.resume is not None:
             self.iteration = self.saved_iteration = self.resume.iteration
         if self.resume_state is not None:
-            self.steps = self.resume_state["steps"]
+            self.steps = self.saved_steps = self.resume_state["steps"]
         self._clock = (time.perf_counter(), self.steps)
         self.last_good = LastGood(self.run_dir, self.framework.spec)
         # Left by a killed run: not this run's, never to be committed or published.
@@ -151,7 +153,7 @@ class RunContext(TrainContext):
             state = snapshot.writer(self.iteration, boundary)
         checkpoints.write(self.run_dir, self.framework.spec, self.iteration, save, state,
                           check=self._check_acts_finitely)
-        self.saved_iteration = self.iteration
+        self.saved_iteration, self.saved_steps = self.iteration, self.steps
 
     def _check_acts_finitely(self, checkpoint: Path) -> None:
         # Loading builds networks, which draws random weights (SB3's even reseeds every

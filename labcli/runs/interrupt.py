@@ -6,6 +6,7 @@ inside a library's update) (`deferred`)."""
 
 from __future__ import annotations
 
+import os
 import signal
 import sys
 import threading
@@ -24,6 +25,7 @@ class StopRequest:
     """The first SIGINT/SIGTERM received while deferred; `signum` stays None until then."""
 
     signum: int | None = None
+    repeats: int = 0  # signals after the first
 
     @property
     def requested(self) -> bool:
@@ -72,19 +74,30 @@ def immediate() -> Iterator[None]:
 
 @contextmanager
 def deferred(stop: StopRequest | None = None) -> Iterator[StopRequest]:
-    """Inside, the first SIGINT or SIGTERM only records itself in the returned StopRequest; a
-    second one raises KeyboardInterrupt (the way out of a stop that hangs). The previous
-    handlers come back on exit. Outside the main thread signals cannot be caught: nothing
-    changes there."""
+    """Inside, the first SIGINT or SIGTERM only records itself in the returned StopRequest. A
+    second one is acknowledged on one line, and changes nothing: an exception raised wherever
+    Python is (mid-checkpoint, inside torch) would leave a traceback and half a save. A third
+    ends the process at once (the way out of a stop that hangs), with the first signal's exit
+    code and the last checkpoint written kept. The previous handlers come back on exit. Outside
+    the main thread signals cannot be caught: nothing changes there."""
     stop = stop if stop is not None else StopRequest()
     if threading.current_thread() is not threading.main_thread():
         yield stop
         return
 
     def handler(signum: int, frame: Any) -> None:
-        if stop.requested:
-            raise KeyboardInterrupt
-        stop.request(signum)
+        if not stop.requested:
+            stop.request(signum)
+            return
+        stop.repeats += 1
+        name = signal.Signals(signum).name
+        if stop.repeats == 1:
+            print(f"{name} again: lab stops as soon as the last complete iteration is saved; "
+                  f"once more ends it now", file=sys.stderr, flush=True)
+            return
+        print(f"{name}: ended now; the last checkpoint written is kept", file=sys.stderr,
+              flush=True)
+        os._exit(stop.exit_code)
 
     previous = {s: signal.signal(s, handler) for s in SIGNALS}
     try:

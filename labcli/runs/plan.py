@@ -5,7 +5,7 @@ first line what it will do before the seconds of importing and building start.""
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -30,6 +30,8 @@ class TrainPlan:
     run: rundir.Run | None = None  # the run a resume continues
     resume: Checkpoint | None = None
     video: VideoSettings | None = None
+    # What a resume changes: {"agent.learning_rate": (old, new), ...}, all of them resumable.
+    changes: dict[str, tuple[Any, Any]] = field(default_factory=dict)
 
     @property
     def new_run_parent(self) -> Path:
@@ -41,8 +43,11 @@ class TrainPlan:
                 f"seed {self.agent_cfg.seed}")
         if self.resume is None:
             return f"train {what}, {self.agent_cfg.max_iterations} iterations"
+        changed = "".join(f", {key} {old!r} -> {new!r}"
+                          for key, (old, new) in self.changes.items()
+                          if key not in ("agent.max_iterations", "env.num_envs"))
         return (f"resume {self.run.dir} from {self.resume.path.name}: {what}, iterations "
-                f"{self.resume.iteration + 1} to {self.agent_cfg.max_iterations}")
+                f"{self.resume.iteration + 1} to {self.agent_cfg.max_iterations}{changed}")
 
 
 def plan(task: str, framework: str, *, num_envs: int | None = None, seed: int | None = None,
@@ -71,9 +76,18 @@ def plan(task: str, framework: str, *, num_envs: int | None = None, seed: int | 
     env_cfg, agent_cfg = config.resolve(spec, fw, base=base, config_file=config_file,
                                         overrides=overrides, num_envs=num_envs,
                                         max_iterations=max_iterations, seed=seed)
+    changes = {}
+    if base is not None:
+        saved_env = config.build(spec.config_class, "env", [base[0]])
+        saved_agent = config.build(fw.agent_config_class, "agent", [base[1]])
+        changes = {**config.changes(saved_env, env_cfg, "env"),
+                   **config.changes(saved_agent, agent_cfg, "agent")}
+        config.check_resumable(resume.path.name, changes, spec.config_class,
+                               fw.agent_config_class)
+    agent_cfg.check(env_cfg.num_envs)
     if resume is not None and resume.iteration >= agent_cfg.max_iterations:
         raise LabError(
             f"checkpoint {resume.path.name} is at iteration {resume.iteration}, and max_iterations"
             f" is {agent_cfg.max_iterations}", "pass a larger --max-iterations to train further")
     return TrainPlan(spec, fw, env_cfg, agent_cfg, logs_dir, device, backend, run_name, run,
-                     resume, video)
+                     resume, video, changes)

@@ -139,11 +139,14 @@ class Show:
 
 
 def _rollout_shown(env, act, episodes: int, seed: int, show: Show,
-                   folder: Path) -> Episodes:
+                   root: Path, kind: str) -> Episodes:
+    """The rollout, shown as `show` says; videos go to `root`/videos/`kind`, where `root` is a
+    run dir, or a sanity agent's dir that is made for them."""
     recorder = None
+    folder = videos.folder(root, kind)
     if show.video is not None:
         # An unwritable place, or a link planted on the way, fails now, not after the rollout.
-        files.real_dir(folder, below=folder.parent.parent)
+        files.real_dir(folder, below=files.user_dir(root))
         recorder = VideoRecorder(env, folder, show.video.length, interval=None)
     shown = recorder or env
     if show.viewer:
@@ -157,16 +160,22 @@ def _rollout_shown(env, act, episodes: int, seed: int, show: Show,
     return eps
 
 
-def play(*, episodes: int = 10, seed: int = 0, show: Show = Show(),
-         **where) -> tuple[LoadedPolicy, Episodes]:
+def _check_rollout(episodes: int, seed: int) -> None:
     if episodes <= 0:
         raise LabError(f"--episodes must be a positive integer, got {episodes}")
+    if not 0 <= seed < 2**32:  # the range training seeds take
+        raise LabError(f"--seed must be in [0, 2**32), got {seed}")
+
+
+def play(*, episodes: int = 10, seed: int = 0, show: Show = Show(),
+         **where) -> tuple[LoadedPolicy, Episodes]:
+    _check_rollout(episodes, seed)
     if where.get("num_envs") is None:
         where["num_envs"] = min(episodes, 256)
     loaded = load(seed=seed, **where)
     try:
-        folder = videos.folder(loaded.run.dir, videos.PLAY)
-        return loaded, _rollout_shown(loaded.env, loaded.policy, episodes, seed, show, folder)
+        return loaded, _rollout_shown(loaded.env, loaded.policy, episodes, seed, show,
+                                      loaded.run.dir, videos.PLAY)
     finally:
         loaded.env.close()
 
@@ -177,8 +186,7 @@ def sanity(task: str, agent: Agent | str, *, episodes: int = 10, seed: int = 0,
     """Roll out `task` with zero or uniformly random actions in [-1, 1] and no checkpoint: do
     rewards, terminations and time-outs behave before a single training step is spent?"""
     agent = Agent(agent)
-    if episodes <= 0:
-        raise LabError(f"--episodes must be a positive integer, got {episodes}")
+    _check_rollout(episodes, seed)
     if num_envs is not None and num_envs <= 0:
         raise LabError(f"--num-envs must be a positive integer, got {num_envs}")
     spec = registry.get_task(task)
@@ -199,8 +207,7 @@ def sanity(task: str, agent: Agent | str, *, episodes: int = 10, seed: int = 0,
 
     try:
         stamp = datetime.now().strftime("%Y-%m-%d_%H-%M-%S")
-        folder = videos.folder((logs_dir or rundir.default_logs_dir()) / SANITY / task
-                               / f"{stamp}_{agent.value}", videos.PLAY)
-        return spec, _rollout_shown(env, act, episodes, seed, show, folder)
+        root = (logs_dir or rundir.default_logs_dir()) / SANITY / task / f"{stamp}_{agent.value}"
+        return spec, _rollout_shown(env, act, episodes, seed, show, root, videos.PLAY)
     finally:
         env.close()

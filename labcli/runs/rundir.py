@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import re
 import socket
 import tempfile
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass
 from datetime import datetime
 from pathlib import Path
@@ -190,6 +192,45 @@ def _alive(manifest: dict[str, Any]) -> bool:
     # Where the OS tells when a process started, a record without that time cannot be told
     # from a later process that reuses the pid (pid 1 always exists): not this run's.
     return _process_start(pid) in (manifest.get("pid_started"), None)
+
+
+@contextlib.contextmanager
+def writing(run: Run) -> Iterator[None]:
+    """Hold the run while this process writes it: a second `lab train` of the same run is
+    refused at once, naming the process that holds it. An advisory lock (flock) on the run dir
+    itself, which writes nothing and which the OS releases when its process ends, however."""
+    try:
+        import fcntl
+    except ImportError:  # Windows: no flock; runs there are not guarded against two writers
+        yield
+        return
+    try:
+        fd = os.open(run.dir, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0)
+                     | getattr(os, "O_CLOEXEC", 0))
+    except OSError as exc:
+        raise LabError(f"run {run.dir} cannot be opened: {exc.strerror}") from exc
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            raise LabError(f"run {run.dir} is being written by {_holder(run)}",
+                           "wait for it to end, or stop it first; two writers would mix their "
+                           "checkpoints") from None
+        yield
+    finally:
+        os.close(fd)  # releases the lock
+
+
+def _holder(run: Run) -> str:
+    """Who holds the run, as its run.json says once the holder has written it."""
+    try:
+        manifest = run.manifest()
+    except LabError:
+        return "another process"
+    if manifest.get("state") != RUNNING or not _alive(manifest):
+        return "another process"
+    return (f"process {manifest['pid']} on {manifest.get('host', 'this host')} (lab train, "
+            f"started {manifest.get('started', '?')})")
 
 
 def check_writable(path: Path) -> None:

@@ -23,11 +23,11 @@ from labcli.envs import metrics, mjwarnings, wrappers
 from labcli.envs.config import TaskConfig
 from labcli.envs.make import make_env
 from labcli.envs.sim import WARP_INSTALL_HINT, default_backend
-from labcli.errors import LabError, TrainingDiverged
+from labcli.errors import LabError
 from labcli.plugins import registry
 from labcli.plugins.config import AgentConfig
 from labcli.plugins.framework import Checkpoint, Framework
-from labcli.runs import config, interrupt, loading, rundir, snapshot
+from labcli.runs import checkpoints, config, interrupt, loading, rundir, snapshot
 from labcli.runs import video as videos
 from labcli.runs.context import RunContext
 from labcli.runs.plan import TrainPlan
@@ -63,16 +63,26 @@ def check_device(device: str | None, backend: str | None = None) -> str:
 def run(plan: TrainPlan, stop: interrupt.StopRequest, console: Console,
         command: list[str] | None = None) -> TrainOutcome:
     """Build what `plan` says and train; nothing is written before the env and the checkpoint
-    to resume from are known to work."""
+    to resume from are known to work, and a resumed run is held against a second writer."""
+    if plan.run is None:
+        return _run(plan, stop, console, command)
+    with rundir.writing(plan.run):
+        return _run(plan, stop, console, command)
+
+
+def _run(plan: TrainPlan, stop: interrupt.StopRequest, console: Console,
+         command: list[str] | None) -> TrainOutcome:
     fw = plan.framework.load()
     device = check_device(plan.device, plan.backend)
     env_cfg, agent_cfg, run_ = plan.env_cfg, plan.agent_cfg, plan.run
     # Before any simulation: a run that cannot be written must not cost a minute of start-up.
     rundir.check_writable(run_.dir if run_ is not None else plan.new_run_parent)
+    before = _previous(run_)
 
     snapshot.seed_all(agent_cfg.seed)
     env = make_env(plan.spec, env_cfg, backend=plan.backend, device=device, seed=agent_cfg.seed)
     try:
+        _check_memory(agent_cfg, env, device)
         resume_state = None
         if plan.resume is not None:
             # A corrupt, mismatched or NaN checkpoint fails here, before anything is written.
@@ -85,29 +95,96 @@ def run(plan: TrainPlan, stop: interrupt.StopRequest, console: Console,
             raise interrupt.before_run(stop)
         if run_ is None:
             run_ = rundir.create(plan.logs_dir, fw.name, plan.spec.name, plan.run_name)
-            rundir.write_atomic(run_.dir, rundir.ENV_PARAMS, config.to_yaml(env_cfg))
-        rundir.write_atomic(run_.dir, rundir.AGENT_PARAMS, config.to_yaml(agent_cfg))
-        argv = list(command) if command is not None else ["lab", *sys.argv[1:]]
-        rundir.write_atomic(run_.dir, rundir.COMMAND, shlex.join(argv) + "\n")
-        manifest = {
-            "task": plan.spec.name, "framework": fw.name, "seed": agent_cfg.seed,
-            "device": device, "backend": env.backend, "num_envs": env.num_envs,
-            "started": datetime.now().isoformat(timespec="seconds"),
-            **rundir.process_identity(), "state": rundir.RUNNING,
-            "versions": _versions(registry.loaded().provider(registry.FRAMEWORK, fw.name)),
-        }
-        if plan.resume is not None:
-            manifest["resumed_from"] = plan.resume.path.name
-        rundir.write_json(run_.dir, rundir.MANIFEST, manifest)
-        if resume_state is not None and resume_state["env"] is not None:
-            env.resume_from(resume_state["env"])
-        if plan.video is not None:  # no link planted on the way: videos go into the run dir
-            files.real_dir(videos.folder(run_.dir, videos.TRAIN), below=run_.dir)
-        pipeline = _pipeline(fw, agent_cfg, plan.video, run_.dir)
-        return _run_training(fw, env, agent_cfg, run_, plan.resume, resume_state, stop, device,
-                             pipeline, console)
+            with rundir.writing(run_):
+                return _start(plan, fw, env, run_, resume_state, before, stop, device, console,
+                              command)
+        return _start(plan, fw, env, run_, resume_state, before, stop, device, console, command)
     finally:
         env.close()
+
+
+def _check_memory(cfg: AgentConfig, env: Any, device: str) -> None:
+    """Refuse settings whose buffers and networks cannot fit in the memory left on the
+    learner's device, naming the setting that asks for most: torch or NumPy would fail deep
+    inside the library, or the OS would kill the process."""
+    needs = cfg.memory(env.num_envs, env.single_observation_space.shape[0],
+                       env.single_action_space.shape[0])
+    free = _free_memory(device)
+    total = sum(needs.values())
+    if free is None or total <= free:
+        return
+    key, largest = max(needs.items(), key=lambda item: item[1])
+    value = getattr(cfg, key.removeprefix("agent."), None)
+    in_all = f" ({_gib(total)} for the learner in all)" if total > largest * 1.01 else ""
+    raise LabError(f"{key}={value!r} with {env.num_envs} envs needs {_gib(largest)} of "
+                   f"memory{in_all}, more than the {_gib(free)} free on {device}",
+                   f"lower {key}, or the env count")
+
+
+def _free_memory(device: str) -> int | None:
+    """Bytes free on `device`: CUDA's count, or Linux's MemAvailable; None where unknown."""
+    if torch.device(device).type == "cuda":
+        return torch.cuda.mem_get_info(torch.device(device))[0]
+    try:
+        for line in Path("/proc/meminfo").read_text().splitlines():
+            if line.startswith("MemAvailable:"):
+                return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    return None
+
+
+def _gib(size: int) -> str:
+    return f"{size / 2**30:,.1f} GiB" if size >= 2**30 else f"{size / 2**20:,.1f} MiB"
+
+
+def _previous(run: rundir.Run | None) -> dict[str, Any]:
+    """What a resumed run's earlier sessions recorded: its manifest and summary."""
+    if run is None:
+        return {"manifest": {}, "summary": {}}
+    return {"manifest": run.manifest(), "summary": run.summary() or {}}
+
+
+def _start(plan: TrainPlan, fw: Framework, env: Any, run_: rundir.Run,
+           resume_state: dict[str, Any] | None, before: dict[str, Any],
+           stop: interrupt.StopRequest, device: str, console: Console,
+           command: list[str] | None) -> TrainOutcome:
+    """Write the run dir's files (the params this session trains with, its command, the
+    manifest with every session so far), then train."""
+    env_cfg, agent_cfg = plan.env_cfg, plan.agent_cfg
+    rundir.write_atomic(run_.dir, rundir.ENV_PARAMS, config.to_yaml(env_cfg))
+    rundir.write_atomic(run_.dir, rundir.AGENT_PARAMS, config.to_yaml(agent_cfg))
+    argv = list(command) if command is not None else ["lab", *sys.argv[1:]]
+    rundir.write_atomic(run_.dir, rundir.COMMAND, shlex.join(argv) + "\n")
+    now = datetime.now().isoformat(timespec="seconds")
+    old = before["manifest"]
+    session = {"started": now, "command": shlex.join(argv)}
+    if plan.resume is not None:
+        session["resumed_from"] = plan.resume.path.name
+        session["changed"] = {key: [old_value, new] for key, (old_value, new)
+                              in plan.changes.items()}
+    manifest = {
+        "task": plan.spec.name, "framework": fw.name, "seed": agent_cfg.seed,
+        "device": device, "backend": env.backend, "num_envs": env.num_envs,
+        "started": now, "first_started": old.get("first_started", old.get("started", now)),
+        **rundir.process_identity(), "state": rundir.RUNNING,
+        "versions": _versions(registry.loaded().provider(registry.FRAMEWORK, fw.name)),
+        "sessions": [*old.get("sessions", []), session],
+    }
+    if plan.resume is not None:
+        manifest["resumed_from"] = plan.resume.path.name
+    rundir.write_json(run_.dir, rundir.MANIFEST, manifest)
+    if resume_state is not None and resume_state["env"] is not None:
+        env.resume_from(resume_state["env"])
+    if plan.video is not None:  # no link planted on the way: videos go into the run dir
+        files.real_dir(videos.folder(run_.dir, videos.TRAIN), below=run_.dir)
+    pipeline = _pipeline(fw, agent_cfg, plan.video, run_.dir)
+    earlier = before["summary"]
+    earlier_wall = earlier.get("total_wall_time_s", earlier.get("wall_time_s", 0.0))
+    changed = frozenset(key.removeprefix("agent.") for key in plan.changes
+                        if key.startswith("agent."))
+    return _run_training(fw, env, agent_cfg, run_, plan.resume, resume_state, stop, device,
+                         pipeline, console, earlier_wall, changed)
 
 
 def _versions(fw_provider: registry.Provider) -> dict[str, str]:
@@ -158,27 +235,29 @@ def _pipeline(fw: Framework, cfg: AgentConfig, video: VideoSettings | None,
 def _run_training(fw: Framework, env: Any, cfg: AgentConfig, run: rundir.Run,
                   resume: Checkpoint | None, resume_state: dict[str, Any] | None,
                   stop: interrupt.StopRequest, device: str, pipeline: list[wrappers.Step],
-                  console: Console) -> TrainOutcome:
+                  console: Console, earlier_wall: float,
+                  changed: frozenset[str]) -> TrainOutcome:
     description = f"{fw.name} · {env.task_spec.name} · {env.num_envs} envs"
     writer = SummaryWriter(log_dir=str(run.dir))
     progress = TrainProgress(cfg.max_iterations, description, console,
                              start=resume.iteration if resume else 0)
     ctx = RunContext(cfg=cfg, env=env, framework=fw, run_dir=run.dir, seed=cfg.seed,
-                       device=device, progress=progress, writer=writer, resume=resume,
-                       resume_state=resume_state, stop=stop)
+                     device=device, progress=progress, writer=writer, resume=resume,
+                     resume_state=resume_state, stop=stop, changed=changed)
     t0 = time.perf_counter()
+
+    def summary_of(state: str) -> dict[str, Any]:
+        return _summary(ctx, fw, run, state, time.perf_counter() - t0, earlier_wall)
+
     # A runs table shows the run as running from now on; the real summary replaces this one.
-    rundir.write_json(run.dir, rundir.SUMMARY, _summary(ctx, fw, run, rundir.RUNNING, 0.0))
+    rundir.write_json(run.dir, rundir.SUMMARY, summary_of(rundir.RUNNING))
     state, error, wrapped = rundir.FAILED, None, None
     try:
         wrapped = wrappers.apply(env, pipeline, fw.name)
         with progress, mjwarnings.counted(ctx.mujoco_warnings):
             fw.train(wrapped, ctx)
         state = rundir.INTERRUPTED if stop.requested else rundir.FINISHED
-    except KeyboardInterrupt:  # a second signal: the stop itself was taking too long
-        stop.request()
-        state = rundir.INTERRUPTED
-    except TrainingDiverged as exc:
+    except LabError as exc:  # diverged (exit 3), or the run dir cannot be written any more
         error = exc
     except Exception as exc:
         # A library fails on NaN weights mid-update (e.g. sampling with a NaN std); any other
@@ -187,13 +266,12 @@ def _run_training(fw: Framework, env: Any, cfg: AgentConfig, run: rundir.Run,
             raise
         error = ctx.failed_on_networks(exc)
     finally:
-        writer.close()
+        _close(writer, console)
         ctx.last_good.discard()
-        summary = _summary(ctx, fw, run, state, time.perf_counter() - t0)
+        summary = summary_of(state)
         if error is not None:
             summary["error"] = error.message
-        rundir.write_json(run.dir, rundir.SUMMARY, summary)
-        run.update_manifest(state=state)
+        _write_end(run, summary, state, console)
         if wrapped is not None:
             wrapped.close()  # env-stage wrappers write what they hold (a video cut short)
     if error is not None:
@@ -203,19 +281,42 @@ def _run_training(fw: Framework, env: Any, cfg: AgentConfig, run: rundir.Run,
     return TrainOutcome(run, summary)
 
 
+def _close(writer: SummaryWriter, console: Console) -> None:
+    try:
+        writer.close()
+    except OSError as exc:  # a full disk: TensorBoard could not write its last figures
+        console.print(f"note: TensorBoard's last figures were not written: {exc.strerror}",
+                      highlight=False)
+
+
+def _write_end(run: rundir.Run, summary: dict[str, Any], state: str, console: Console) -> None:
+    """The summary and the manifest's state, where they can still be written (a full disk, a
+    deleted run dir: said in one line, which the run's error follows)."""
+    try:
+        rundir.write_json(run.dir, rundir.SUMMARY, summary)
+        run.update_manifest(state=state)
+    except LabError as exc:
+        console.print(f"note: the run's summary was not written: {exc.message}",
+                      highlight=False, soft_wrap=True)
+
+
 def _summary(ctx: RunContext, fw: Framework, run: rundir.Run, state: str,
-             wall: float) -> dict[str, Any]:
-    found = fw.spec.checkpoints(run.dir)
+             wall: float, earlier_wall: float) -> dict[str, Any]:
+    found = checkpoints.latest_complete(fw.spec, run.dir)
     stats = ctx.last_stats
+    # An interrupted run goes on from its checkpoint: the summary claims no more than that.
+    iterations, steps = ((ctx.saved_iteration, ctx.saved_steps) if state == rundir.INTERRUPTED
+                         and ctx.saved_iteration >= 0 else (ctx.iteration, ctx.steps))
     return {
         "state": state,
-        "iterations": ctx.iteration,
-        "steps": ctx.steps,
+        "iterations": iterations,
+        "steps": steps,
         "wall_time_s": round(wall, 2),
+        "total_wall_time_s": round(earlier_wall + wall, 2),
         "mean_return": _finite_or_none(stats.get(metrics.MEAN_RETURN)),
         "mean_episode_length": _finite_or_none(stats.get(metrics.MEAN_LENGTH)),
         "success_rate": _finite_or_none(stats.get(metrics.SUCCESS_RATE)),
-        "checkpoint": found[-1].path.name if found else None,
+        "checkpoint": found.path.name if found else None,
         "finished": datetime.now().isoformat(timespec="seconds"),
     }
 

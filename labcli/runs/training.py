@@ -31,20 +31,16 @@ def train(task: str, framework: str, *, num_envs: int | None = None, seed: int |
     console = console or Console(stderr=True)
     # A signal lab's console script recorded while this command started counts as the first.
     with interrupt.deferred(interrupt.StopRequest(interrupt.startup.signum)) as stop:
-        try:
-            the_plan = plan(task, framework, num_envs=num_envs, seed=seed,
-                            max_iterations=max_iterations, device=device, backend=backend,
-                            run_name=run_name, overrides=overrides, config_file=config_file,
-                            checkpoint=checkpoint, logs_dir=logs_dir, video=video)
-            for failure in registry.loaded().failures:  # what they provide is missing: say so
-                console.print(f"warning: plugin '{failure.plugin}' ({failure.provider}) failed "
-                              f"to load: {failure.error}", highlight=False, soft_wrap=True)
-            console.print(the_plan.describe(), highlight=False, soft_wrap=True)
-            # torch, MuJoCo and the framework's library: seconds, after the line above.
-            from labcli.runs import session
+        the_plan = plan(task, framework, num_envs=num_envs, seed=seed,
+                        max_iterations=max_iterations, device=device, backend=backend,
+                        run_name=run_name, overrides=overrides, config_file=config_file,
+                        checkpoint=checkpoint, logs_dir=logs_dir, video=video)
+        for failure in registry.loaded().failures:  # what they provide is missing: say so
+            console.print(f"warning: plugin '{failure.plugin}' ({failure.provider}) failed to "
+                          f"load: {failure.error}", highlight=False, soft_wrap=True)
+        console.print(the_plan.describe(), highlight=False, soft_wrap=True)
+        # torch, MuJoCo and the framework's library: seconds, after the line above.
+        from labcli.runs import session
 
-            return session.run(the_plan, stop, console,
-                               list(command) if command is not None else None)
-        except KeyboardInterrupt:  # a second signal before the run dir existed
-            stop.request()
-            raise interrupt.before_run(stop) from None
+        return session.run(the_plan, stop, console,
+                           list(command) if command is not None else None)

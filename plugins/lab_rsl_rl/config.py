@@ -3,19 +3,26 @@ sets them."""
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import ClassVar, Literal
 
-from pydantic import Field
+from pydantic import Field, PositiveInt
 
-from labcli.plugins.config import AgentConfig
+from labcli.plugins.config import FLOAT, AgentConfig, mlp_bytes, too_many_batches
 
 
 class RslRlPpoConfig(AgentConfig):
     """RSL-RL's PPO and actor-critic settings, named as in Isaac Lab's RslRlPpoAlgorithmCfg."""
 
+    # PPO is rebuilt from the config on resume; the learning rate, restored with the optimizer,
+    # is set again when a resume changes it.
+    resumable: ClassVar[frozenset[str]] = AgentConfig.resumable | {
+        "learning_rate", "schedule", "desired_kl", "num_learning_epochs", "num_mini_batches",
+        "gamma", "lam", "clip_param", "entropy_coef", "value_loss_coef",
+        "use_clipped_value_loss", "max_grad_norm"}
+
     num_steps_per_env: int = Field(24, gt=0, description="steps per env per iteration")
-    actor_hidden_dims: list[int] = Field(default_factory=lambda: [64, 64])
-    critic_hidden_dims: list[int] = Field(default_factory=lambda: [64, 64])
+    actor_hidden_dims: list[PositiveInt] = Field(default_factory=lambda: [64, 64])
+    critic_hidden_dims: list[PositiveInt] = Field(default_factory=lambda: [64, 64])
     activation: Literal["elu", "relu", "tanh", "selu", "lrelu", "gelu", "swish"] = "elu"
     init_noise_std: float = Field(1.0, gt=0, description="initial std of the Gaussian actions")
     empirical_normalization: bool = Field(
@@ -32,3 +39,19 @@ class RslRlPpoConfig(AgentConfig):
     value_loss_coef: float = 1.0
     use_clipped_value_loss: bool = True
     max_grad_norm: float = Field(1.0, gt=0)
+
+    def check(self, num_envs: int) -> None:
+        samples = self.num_steps_per_env * num_envs
+        if self.num_mini_batches > samples:
+            raise too_many_batches("agent.num_mini_batches", self.num_mini_batches, samples)
+
+    def memory(self, num_envs: int, observations: int, actions: int) -> dict[str, int]:
+        # RSL-RL's storage: actor and critic observations, actions, their means and std, and
+        # six floats a sample.
+        samples = self.num_steps_per_env * num_envs
+        return {
+            "agent.num_steps_per_env": samples * (2 * observations + 3 * actions + 6) * FLOAT,
+            "agent.actor_hidden_dims": mlp_bytes([observations, *self.actor_hidden_dims,
+                                                  actions]),
+            "agent.critic_hidden_dims": mlp_bytes([observations, *self.critic_hidden_dims, 1]),
+        }

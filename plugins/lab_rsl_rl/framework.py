@@ -134,6 +134,10 @@ class LabRunner(OnPolicyRunner):
             raise LabError(f"checkpoint {path.name} does not fit the agent config: "
                            f"{first_line(exc)}", "resume without changing the network") from exc
         self.current_learning_iteration = self.ctx.start_iteration
+        if "learning_rate" in self.ctx.changed:  # the optimizer came back with the old one
+            self.alg.learning_rate = self.ctx.cfg.learning_rate
+            for group in self.alg.optimizer.param_groups:
+                group["lr"] = self.ctx.cfg.learning_rate
 
 
 class RslRlFramework(Framework):

@@ -2,14 +2,21 @@
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import ClassVar, Literal
 
 from pydantic import Field, PositiveInt
 
-from labcli.plugins.config import AgentConfig
+from labcli.plugins.config import FLOAT, AgentConfig, mlp_bytes, too_many_batches
 
 
 class SkrlPPOConfig(AgentConfig):
+    # The agent is rebuilt from the config on resume; the learning rate, restored with the
+    # optimizer, is set again when a resume changes it.
+    resumable: ClassVar[frozenset[str]] = AgentConfig.resumable | {
+        "learning_rate", "learning_epochs", "mini_batches", "discount_factor", "gae_lambda",
+        "ratio_clip", "value_clip", "entropy_loss_scale", "value_loss_scale", "grad_norm_clip",
+        "reward_scale", "desired_kl"}
+
     rollouts: int = Field(16, gt=0, description="steps per env per iteration")
     learning_epochs: int = Field(8, gt=0)
     mini_batches: int = Field(8, gt=0)
@@ -30,3 +37,16 @@ class SkrlPPOConfig(AgentConfig):
     normalize_obs: bool = True
     normalize_value: bool = True
     clip_obs: float = Field(5.0, gt=0, description="normalized observations are clipped to ±this")
+
+    def check(self, num_envs: int) -> None:
+        samples = self.rollouts * num_envs
+        if self.mini_batches > samples:  # skrl would loop without end on empty batches
+            raise too_many_batches("agent.mini_batches", self.mini_batches, samples)
+
+    def memory(self, num_envs: int, observations: int, actions: int) -> dict[str, int]:
+        # skrl's memory: observations, actions, and seven floats a sample.
+        return {
+            "agent.rollouts": self.rollouts * num_envs * (observations + actions + 7) * FLOAT,
+            "agent.hidden_sizes": mlp_bytes([observations, *self.hidden_sizes, actions])
+            + mlp_bytes([observations, *self.hidden_sizes, 1]),
+        }

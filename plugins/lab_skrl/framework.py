@@ -134,6 +134,9 @@ class SkrlFramework(Framework):
             saved = read_checkpoint(ctx.resume.path)
             load_agent(agent, saved, ctx.resume.path)
             steps = saved[META]["steps"]
+            if "learning_rate" in ctx.changed:  # the optimizer came back with the old one
+                for group in agent.optimizer.param_groups:
+                    group["lr"] = cfg.learning_rate
         meta = {
             "observation_size": _size(env.observation_space),
             "action_size": _size(env.action_space),
