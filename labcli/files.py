@@ -9,6 +9,7 @@ and JSON are parsed with their nesting and YAML's alias expansion bounded."""
 from __future__ import annotations
 
 import contextlib
+import errno
 import json
 import os
 import shutil
@@ -57,14 +58,18 @@ def fsync_file(path: Path) -> None:
         os.close(fd)
 
 
+def deleted(path: Path) -> LabError:
+    return LabError(f"{path} no longer exists: it was deleted or moved while lab used it",
+                    "nothing more was written")
+
+
 def real_dir(path: Path, create: bool = True, below: Path | None = None) -> Path:
     """`path` as a directory that is no link (created, with its missing parents, when `create`):
     a link in a shared run dir would send lab's writes wherever it points. With `below`, every
     directory between `below` and `path` is checked so, not only `path`."""
     if below is not None and path == below:
         if not path.is_dir():  # a run dir is never re-created: lab would leave a husk
-            raise LabError(f"{path} no longer exists: it was deleted or moved while lab used it",
-                           "nothing more was written")
+            raise deleted(path)
         return path
     if below is not None:
         real_dir(path.parent, create, below)
@@ -90,7 +95,26 @@ def unwritable(path: Path, exc: OSError) -> LabError:
     directory, not permitted)."""
     reason = exc.strerror or type(exc).__name__
     return LabError(f"cannot write {path}: {reason}",
-                    "free some space" if exc.errno == 28 else "pick a writable place")
+                    "free some space" if exc.errno == errno.ENOSPC else "pick a writable place")
+
+
+# Less than this free after a failed write: the disk was full, whatever the writer said.
+FULL_BELOW = 1 << 20
+
+
+def failed_write(path: Path, exc: Exception, root: Path | None = None) -> LabError | None:
+    """The one line for a write that failed, or None when it is no file-system failure: an
+    OSError, or an error from a library that hides ENOSPC in its own (torch.save's "unexpected
+    pos") while the disk is full. With `root` (a run dir): its disappearance is said as such."""
+    if root is not None and not root.is_dir():
+        return deleted(root)
+    if isinstance(exc, OSError):
+        return unwritable(path, exc)
+    try:
+        full = shutil.disk_usage(path.parent).free < FULL_BELOW
+    except OSError:
+        return None
+    return unwritable(path, OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))) if full else None
 
 
 def user_dir(path: Path) -> Path:

@@ -5,7 +5,6 @@ input gives a traceback."""
 from __future__ import annotations
 
 import dataclasses
-import json
 import os
 import shutil
 import subprocess
@@ -20,6 +19,7 @@ from lab_cartpole.cartpole import Cartpole
 from lab_cartpole.config import CartpoleConfig
 from lab_sb3.config import Sb3PPOConfig
 from oneline import assert_one_line_error
+from runfiles import copy_checkpoint, snapshot_of
 from typer.testing import CliRunner
 
 from labcli.commands.app import app
@@ -38,23 +38,6 @@ def lab(*args: str, logs: Path):
     return CliRunner().invoke(app, list(args), env={"LAB_LOGS_DIR": str(logs), "COLUMNS": "300"})
 
 
-
-
-def copy_checkpoint(source: Path, iteration: int, target: Path, as_iteration: int) -> None:
-    """Checkpoint `iteration` of run `source` into run `target` as `as_iteration`, with its
-    manifest: a whole checkpoint, as copying a run's files by hand would make one."""
-    manifest = json.loads((source / f"checkpoint_{iteration}.json").read_text())
-    renamed = {}
-    for name, entry in manifest["files"].items():
-        new = name.replace(f"_{iteration}.", f"_{as_iteration}.")
-        (target / new).write_bytes((source / name).read_bytes())
-        renamed[new] = entry
-    manifest.update(iteration=as_iteration, files=renamed)
-    (target / f"checkpoint_{as_iteration}.json").write_text(json.dumps(manifest))
-
-
-def snapshot_of(root: Path) -> dict[Path, int]:
-    return {p: p.stat().st_mtime_ns for p in root.rglob("*")}
 
 
 @pytest.fixture(scope="module")

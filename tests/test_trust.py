@@ -11,7 +11,6 @@ from __future__ import annotations
 import base64
 import builtins
 import contextlib
-import hashlib
 import json
 import os
 import pickle
@@ -24,6 +23,7 @@ from pathlib import Path
 import pytest
 import torch
 from oneline import assert_one_line_error
+from runfiles import remanifest
 from typer.testing import CliRunner
 
 from labcli.commands.app import app
@@ -57,24 +57,6 @@ class Payload:
 
     def __reduce__(self):
         return builtins.open, (str(self.marker), "w")
-
-
-def remanifest(run_dir: Path, iteration: int) -> None:
-    """Make checkpoint `iteration`'s manifest match its files again, as an attacker would."""
-    path = run_dir / f"checkpoint_{iteration}.json"
-    manifest = json.loads(path.read_text())
-    for name in list(manifest["files"]):
-        data = (run_dir / name).read_bytes() if (run_dir / name).exists() else None
-        if data is None:
-            del manifest["files"][name]
-        else:
-            manifest["files"][name] = {"bytes": len(data),
-                                       "sha256": hashlib.sha256(data).hexdigest()}
-    for planted in run_dir.glob(f"*_{iteration}.pkl"):
-        data = planted.read_bytes()
-        manifest["files"][planted.name] = {"bytes": len(data),
-                                           "sha256": hashlib.sha256(data).hexdigest()}
-    path.write_text(json.dumps(manifest))
 
 
 def plant_sb3_payload(checkpoint: Path, marker: Path) -> None:

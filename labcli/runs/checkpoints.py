@@ -54,13 +54,18 @@ def write(directory: Path, fw: FrameworkSpec, iteration: int, save: Callable[[Pa
             save(model)
             if extra is not None:
                 extra(staging)
-        except OSError as exc:
-            raise files.unwritable(fw.checkpoint_path(directory, iteration), exc) from exc
-        if not model.is_file():
-            raise RuntimeError(f"framework '{fw.name}' did not write its checkpoint at {model}")
-        if check is not None:
-            check(model)
-        _publish(staging, directory, iteration, fw.name)
+            if not model.is_file():
+                raise RuntimeError(f"framework '{fw.name}' did not write its checkpoint at "
+                                   f"{model}")
+            if check is not None:
+                check(model)
+            _publish(staging, directory, iteration, fw.name)
+        except (OSError, RuntimeError) as exc:
+            error = files.failed_write(fw.checkpoint_path(directory, iteration), exc,
+                                       root=below or directory)
+            if error is None:
+                raise
+            raise error from exc
     finally:
         files.remove(staging)
     return Checkpoint(fw.checkpoint_path(directory, iteration), iteration)
@@ -79,12 +84,9 @@ def _publish(staging: Path, directory: Path, iteration: int, framework: str) -> 
             raise RuntimeError(f"a checkpoint holds only files, not {path.name}")
         files.fsync_file(path)
         entries[path.name] = {"bytes": path.stat().st_size, "sha256": _sha256(path)}
-    try:
-        for name in entries:
-            (staging / name).chmod(files.FILE_MODE)
-            (staging / name).replace(directory / name)
-    except OSError as exc:
-        raise files.unwritable(directory, exc) from exc
+    for name in entries:
+        (staging / name).chmod(files.FILE_MODE)
+        (staging / name).replace(directory / name)
     manifest = {"iteration": iteration, "framework": framework, "files": entries}
     files.write_atomic(manifest_path(directory, iteration), json.dumps(manifest, indent=2) + "\n",
                        below=directory)

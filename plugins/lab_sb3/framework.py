@@ -116,13 +116,16 @@ class Sb3Framework(Framework):
         callback = _LabCallback(ctx, save, env if isinstance(env, VecNormalize) else None)
         ctx.watch(model.policy)
         remaining = cfg.max_iterations - ctx.start_iteration
-        with one_torch_thread(ctx.device):
-            model.learn(total_timesteps=remaining * cfg.n_steps * env.num_envs,
-                        callback=callback, reset_num_timesteps=ctx.resume is None,
-                        progress_bar=False)
-        if not ctx.stop_requested:
-            callback.end_iteration()  # the last update has no next rollout start
-        ctx.save(save)
+        try:
+            with one_torch_thread(ctx.device):
+                model.learn(total_timesteps=remaining * cfg.n_steps * env.num_envs,
+                            callback=callback, reset_num_timesteps=ctx.resume is None,
+                            progress_bar=False)
+            if not ctx.stop_requested:
+                callback.end_iteration()  # the last update has no next rollout start
+            ctx.save(save)
+        finally:
+            model.logger.close()  # its TensorBoard writer holds a file of the run dir open
 
     def load_policy(self, checkpoint: Path, env: Any, cfg: Sb3PPOConfig) -> Policy:
         policy = ActorCriticPolicy(env.single_observation_space, env.single_action_space,
