@@ -220,8 +220,9 @@ def read_text(path: Path, limit: int = TEXT_LIMIT) -> str:
 
 def load_yaml(text: str) -> Any:
     """YAML's safe loader, with nesting and alias expansion bounded (`YAML_NODE_LIMIT`)."""
-    loader = yaml.SafeLoader(text)
+    loader = None
     try:
+        loader = yaml.SafeLoader(text)  # its reader refuses control characters at once
         node = loader.get_single_node()
         if node is None:
             return None
@@ -232,7 +233,8 @@ def load_yaml(text: str) -> Any:
     except yaml.YAMLError as exc:
         raise Unreadable(f"is not valid YAML: {str(exc).splitlines()[0]}") from None
     finally:
-        loader.dispose()
+        if loader is not None:
+            loader.dispose()
 
 
 def _check_yaml_size(root: yaml.Node) -> None:

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import contextlib
 import io
-import pickle
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -76,9 +75,11 @@ def read_torch_file(path: Path, device: str = "cpu", what: str = "checkpoint") -
         return torch.load(io.BytesIO(data), map_location=device, weights_only=True)
     except files.Unreadable as exc:
         raise LabError(f"{what} {path} {exc}", "pick another checkpoint") from None
-    except (RuntimeError, EOFError, ValueError, pickle.UnpicklingError) as exc:
-        raise LabError(f"{what} {path} is not a readable torch file: {first_line(exc)}",
-                       "pick another checkpoint") from None
+    except Exception as exc:  # torch.load of arbitrary bytes fails in many ways (struct.error,
+        # EOFError, UnpicklingError...); with weights_only nothing else can happen: all mean "not
+        # a torch file"
+        raise LabError(f"{what} {path} is not a readable torch file: {type(exc).__name__}: "
+                       f"{first_line(exc)}", "pick another checkpoint") from None
 
 
 def check_mlp(checkpoint: Path, inputs: int, hidden: Any, outputs: int) -> list[int]:

@@ -158,6 +158,10 @@ def _value_at(value: Any, path: list) -> Any:
 
 def _explain(exc: ValidationError, model: type[BaseModel], section: str) -> LabError:
     err = exc.errors()[0]
+    if not err["loc"]:  # about the settings together (a model validator), not one key
+        message = err["msg"].removeprefix("Value error, ")
+        return LabError(f"bad {section} settings: {message}",
+                        f"see `lab config show` for the {section} settings")
     key = ".".join([section, *(str(p) for p in err["loc"])])
     if err["type"] == "extra_forbidden":
         fields = sorted(model.model_fields)
