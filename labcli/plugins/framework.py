@@ -1,25 +1,42 @@
 """The public framework-plugin API: what a learning library provides to `lab`.
 
 A framework plugin registers a `FrameworkSpec`: its name, agent config, checkpoint file names,
-wrappers (its adapter first) and, by a "module:Class" reference imported only when training or
-loading, its `Framework` subclass (`train`, `load_policy`, `pipeline`). Every framework runs
-under the same `lab train/play/export` commands and the same run layout. Nothing here imports
-torch, pydantic or a learning library: listing stays instant. The agent's settings are an
-`AgentConfig` (labcli/plugins/config.py).
+wrappers (its adapter first), defaults for tasks it knows and, by a "module:Class" reference
+imported only when training or loading, its `Framework` subclass (`train`, `load_policy`,
+`pipeline`). Every framework runs under the same `lab train/play/export` commands and the same
+run layout. Nothing here imports torch, pydantic or a learning library: listing stays instant.
+The agent's settings are an `AgentConfig` (labcli/plugins/config.py). docs/plugins.md is the
+reference of this API.
 """
 
 from __future__ import annotations
 
 import abc
+import contextlib
 import functools
 import re
-from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from labcli import refs
 from labcli.envs.wrappers import Stage, Step, WrapperSpec
+
+# A checkpoint's writer: `save(path)` writes the framework's model file at exactly `path`, whose
+# name is the final one (`model_50.pt`) in a private staging directory, and its companions
+# beside it in `path.parent`. A library that appends the suffix itself is handed
+# `path.with_suffix("")`.
+Save = Callable[[Path], None]
+# The live agent's deterministic action (the mean, before any clipping) for a batch of the env's
+# raw observations, computed the library's own way: its normalizer, its forward pass.
+Actor = Callable[[Any], Any]
+
+
+class StopTraining(Exception):
+    """Training must end now: raised by the env's `step` once a stop is requested (Ctrl-C,
+    SIGTERM), and by a framework's own hook when `end_iteration` returns True, to leave a loop
+    the library owns. `TrainContext.training` catches it and checkpoints."""
 
 
 @dataclass
@@ -32,14 +49,20 @@ class Checkpoint:
 class FrameworkSpec:
     """What a framework plugin registers. `framework` and `agent_config` are classes or
     "module:Class" strings imported when first used. `wrappers` are the wrappers the framework
-    owns, its `Stage.ADAPTER` first; lab registers them with the framework. Checkpoint files are
-    `<checkpoint_prefix><iteration><checkpoint_suffix>` in the run dir, e.g. model_50.zip."""
+    owns, its `Stage.ADAPTER` first; lab registers them with the framework. `library` is the
+    distribution of the learning library (its version shows in `lab info` and each run's
+    manifest). `task_defaults` are this framework's defaults for tasks it knows, task name ->
+    {"env": {...}, "agent": {...}}; a task's own `framework_defaults` for this framework win
+    over them. Checkpoint files are `<checkpoint_prefix><iteration><checkpoint_suffix>` in the
+    run dir, e.g. model_50.zip."""
 
     name: str
     framework: type[Framework] | str
     agent_config: type | str  # a labcli.plugins.config.AgentConfig subclass
     wrappers: Sequence[WrapperSpec] = ()
     description: str = ""
+    library: str = ""
+    task_defaults: Mapping[str, Mapping[str, Mapping[str, Any]]] = field(default_factory=dict)
     checkpoint_prefix: str = "model_"
     checkpoint_suffix: str = ".pt"
 
@@ -98,10 +121,11 @@ class Framework:
         return [Step(self.spec.adapter)] if self.spec.adapter else []
 
     def train(self, env: Any, ctx: TrainContext) -> None:
-        """Train on the wrapped `env` until `ctx.cfg.max_iterations`, calling
-        `ctx.end_iteration` after each iteration and `ctx.save` for checkpoints, stopping at the
-        next env step once `ctx.stop_requested`. On resume (`ctx.resume`), load the checkpoint,
-        then call `ctx.restore_rng()` right before the first rollout."""
+        """Train on the wrapped `env` until `ctx.cfg.max_iterations`, inside
+        `with ctx.training(save):`, calling `ctx.end_iteration(..., save)` after each update.
+        Once a stop is requested the env's next step raises `StopTraining`, which
+        `ctx.training` catches. On resume (`ctx.resume`), load the checkpoint, then call
+        `ctx.restore_rng()` right before the first rollout."""
         raise NotImplementedError
 
     def load_policy(self, checkpoint: Path, env: Any, cfg: Any) -> Any:
@@ -140,8 +164,16 @@ class TrainContext(abc.ABC):
     @property
     @abc.abstractmethod
     def stop_requested(self) -> bool:
-        """SIGINT or SIGTERM arrived: stop at the next env step; lab takes care of the
-        checkpoint."""
+        """SIGINT or SIGTERM arrived: the env's next step raises `StopTraining`."""
+
+    @contextlib.contextmanager
+    def training(self, save: Save) -> Iterator[None]:
+        """Around the library's training loop: `StopTraining` ends the loop, and the last
+        complete iteration is checkpointed through `save` (once: an iteration `end_iteration`
+        saved already is not written again)."""
+        with contextlib.suppress(StopTraining):
+            yield
+        self.save(save)
 
     @abc.abstractmethod
     def restore_rng(self) -> None:
@@ -149,16 +181,27 @@ class TrainContext(abc.ABC):
         them; call it once the agent is built, right before the first rollout."""
 
     @abc.abstractmethod
-    def end_iteration(self, iteration: int, steps: int, save: Callable[[Path], None],
+    def end_iteration(self, iteration: int, steps: int, save: Save,
                       scalars: Mapping[str, float] | None = None) -> bool:
-        """Log the common figures, update progress, checkpoint when due. Returns True when
-        training must stop now; the checkpoint is already written then."""
+        """After each rollout + update: `iteration` and `steps` done so far, counted on from a
+        resumed checkpoint; `scalars` are the library's own figures (losses) by TensorBoard tag.
+        Logs the common figures, updates progress, checkpoints through `save` when due. Returns
+        True when training must end now: `max_iterations` is reached or a stop was requested;
+        the checkpoint is written then."""
 
     @abc.abstractmethod
-    def save(self, save: Callable[[Path], None]) -> None:
-        """Checkpoint the current iteration through `save(path)`, atomically; nothing when that
-        iteration is saved already."""
+    def save(self, save: Save) -> None:
+        """Checkpoint the current iteration (`self.iteration`) through `save`, atomically;
+        nothing when that iteration is saved already. A library's own counters may include a
+        rollout dropped by a stop: `save` writes `self.iteration` and `self.steps`."""
 
     @abc.abstractmethod
     def watch(self, *networks: Any) -> None:
         """The agent's networks (torch modules), checked for NaN and inf after each update."""
+
+    @abc.abstractmethod
+    def set_actor(self, actor: Actor) -> None:
+        """The live agent's deterministic actions (see `Actor`). At each checkpoint lab loads
+        the Policy `load_policy` makes of it and checks that it acts the same on the env's
+        current observations: what is played and exported is what was trained. The conformance
+        suite requires it."""

@@ -1,24 +1,26 @@
 """The TrainContext a framework's `train` is handed: lab's side of the contract in
 labcli/plugins/framework.py. It logs the figures every framework shares, drives the progress
-bar, writes checkpoints atomically with the env state beside them, keeps the last good state of
-a diverging run, and turns SIGINT/SIGTERM into a stop at the next env step."""
+bar, writes checkpoints atomically with the env state beside them, checks that each one loads
+as a Policy acting like the live agent, keeps the last good state of a diverging run, and turns
+SIGINT/SIGTERM into a stop at the next env step (`StopAtRequest`)."""
 
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import gymnasium as gym
 import torch
 from torch import nn
 from torch.utils.tensorboard import SummaryWriter
 
 from labcli.envs import metrics, mjwarnings
-from labcli.errors import TrainingDiverged
+from labcli.errors import LabError, TrainingDiverged
 from labcli.plugins.config import AgentConfig
-from labcli.plugins.framework import Checkpoint, Framework, TrainContext
+from labcli.plugins.framework import Actor, Checkpoint, Framework, Save, StopTraining, TrainContext
 from labcli.runs import checkpoints, interrupt, snapshot
 from labcli.runs.lastgood import LastGood
 from labcli.runs.progress import TrainProgress
@@ -26,6 +28,30 @@ from labcli.runs.progress import TrainProgress
 NONFINITE_NETWORKS = "its update left non-finite values (NaN or inf) in the agent's networks"
 DIVERGED_HINT = ("lower agent.learning_rate (or raise its clipping) and resume from the last good "
                  "checkpoint with --checkpoint")
+# How far a checkpoint's Policy may act from the live agent it was saved from. Both run the same
+# float32 operations, at most regrouped (a normalizer's std + eps squared, then rooted): the
+# built-ins are 6e-8 apart or less; a constant actor or a normalizer handed the std as the
+# variance were 0.22 and 0.04 apart after two tiny cartpole iterations.
+POLICY_TOLERANCE = 1e-4
+
+
+class StopAtRequest(gym.vector.VectorWrapper):
+    """The innermost wrapper while training: once a stop is requested, the next step raises
+    StopTraining, out of whatever loop the library runs. Everything else passes through."""
+
+    def __init__(self, env: gym.vector.VectorEnv, stop: interrupt.StopRequest):
+        super().__init__(env)
+        self.stop = stop
+
+    def __getattr__(self, name: str) -> Any:
+        if name == "env":
+            raise AttributeError(name)
+        return getattr(self.env, name)
+
+    def step(self, actions: Any):
+        if self.stop.requested:
+            raise StopTraining
+        return self.env.step(actions)
 
 
 @dataclass
@@ -55,6 +81,10 @@ class RunContext(TrainContext):
     _boundary: dict[str, Any] | None = None
     _told_mujoco_warnings: bool = False
     _networks: list[nn.Module] = field(default_factory=list)
+    _actor: Actor | None = None
+    # The largest action difference between a checkpoint's Policy and the live agent so far;
+    # None while the framework gave no actor.
+    policy_difference: float | None = None
     last_good: LastGood = field(init=False)
     _clock: tuple[float, int] = (0.0, 0)
 
@@ -79,7 +109,7 @@ class RunContext(TrainContext):
         if self.resume_state is not None:
             snapshot.set_rng_state(self.resume_state["rng"])
 
-    def end_iteration(self, iteration: int, steps: int, save: Callable[[Path], None],
+    def end_iteration(self, iteration: int, steps: int, save: Save,
                       scalars: Mapping[str, float] | None = None) -> bool:
         now = time.perf_counter()
         t0, s0 = self._clock
@@ -105,15 +135,18 @@ class RunContext(TrainContext):
             self.writer.add_scalar(tag, value, steps)
         self.progress.update(iteration, steps_per_s, self.last_stats.get(metrics.MEAN_RETURN),
                              self.last_stats.get(metrics.SUCCESS_RATE))
-        due = iteration % self.cfg.save_interval == 0 or iteration >= self.cfg.max_iterations
-        if due or self.stop_requested:
+        last = iteration >= self.cfg.max_iterations
+        if last or self.stop_requested or iteration % self.cfg.save_interval == 0:
             self.save(save)
-        return self.stop_requested
+        return last or self.stop_requested
 
     def watch(self, *networks: nn.Module) -> None:
         # Checked after each update, so that a diverged update stops training with a clear
         # message, not a library's traceback later.
         self._networks.extend(networks)
+
+    def set_actor(self, actor: Actor) -> None:
+        self._actor = actor
 
     def networks_finite(self) -> bool:
         return all(_finite(module) for module in self._networks)
@@ -141,10 +174,10 @@ class RunContext(TrainContext):
                 f"{metrics.MUJOCO_WARNINGS}", highlight=False, soft_wrap=True)
         return count
 
-    def save(self, save: Callable[[Path], None]) -> None:
+    def save(self, save: Save) -> None:
         """A complete checkpoint set of the current iteration (labcli/runs/checkpoints.py), with
-        the env and generator state of that iteration's end. A policy that acts with NaN is never
-        published: it stops training instead."""
+        the env and generator state of that iteration's end. A policy that acts with NaN, or
+        otherwise than the live agent, is never published: it stops training instead."""
         if self.saved_iteration == self.iteration:
             return
         boundary = self._boundary
@@ -152,23 +185,43 @@ class RunContext(TrainContext):
         if boundary is not None and boundary["iteration"] == self.iteration:
             state = snapshot.writer(self.iteration, boundary)
         checkpoints.write(self.run_dir, self.framework.spec, self.iteration, save, state,
-                          check=self._check_acts_finitely)
+                          check=self._check_policy)
         self.saved_iteration, self.saved_steps = self.iteration, self.steps
 
-    def _check_acts_finitely(self, checkpoint: Path) -> None:
+    def _check_policy(self, checkpoint: Path) -> None:
         # Loading builds networks, which draws random weights (SB3's even reseeds every
         # generator): the run must go on with the numbers it would have drawn without the check.
         rng = snapshot.rng_state()
+        obs = self.env.observations()
         try:
             # Policies load onto the CPU (portable checkpoints); the env may be on a GPU.
             policy = self.framework.load_policy(checkpoint, self.env, self.cfg).to(self.env.device)
             with torch.no_grad():
-                finite = bool(torch.isfinite(policy(self.env.observations())).all())
+                actions = policy(obs)
+                live = None if self._actor is None else self._actor(obs)
         finally:
             snapshot.set_rng_state(rng)
-        if not finite:
+        if not bool(torch.isfinite(actions).all()):
             raise self._diverged(self.iteration, "the policy's actions are not finite (NaN or "
                                  "inf) after this iteration's update", candidate_proven=False)
+        if live is not None:
+            self._compare(checkpoint, actions, torch.as_tensor(live).to(actions).clamp(-1, 1))
+
+    def _compare(self, checkpoint: Path, actions: torch.Tensor, live: torch.Tensor) -> None:
+        """The Policy of `checkpoint` must act as the agent that was saved in it."""
+        if live.shape != actions.shape:
+            raise LabError(f"framework '{self.framework.name}': its live agent gives actions of "
+                           f"shape {tuple(live.shape)}, its Policy {tuple(actions.shape)}",
+                           "a bug in the framework plugin: report it to its authors")
+        difference = (actions - live).abs().max().item()
+        self.policy_difference = max(self.policy_difference or 0.0, difference)
+        if not difference <= POLICY_TOLERANCE:
+            raise LabError(f"framework '{self.framework.name}': the Policy loaded from "
+                           f"{checkpoint.name} acts up to {difference:.2g} away from the agent "
+                           f"it was saved from (allowed: {POLICY_TOLERANCE:g}); playing or "
+                           "exporting it would not run what was trained",
+                           "a bug in the framework plugin's load_policy: report it to its "
+                           "authors")
 
     def _last_good(self) -> str:
         found = self.framework.spec.checkpoints(self.run_dir)

@@ -4,13 +4,13 @@ and the framework's library; `labcli/runs/training.py` has planned and announced
 
 from __future__ import annotations
 
+import contextlib
 import math
 import shlex
 import sys
 import time
 from dataclasses import dataclass
 from datetime import datetime
-from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 from typing import Any
 
@@ -26,10 +26,10 @@ from labcli.envs.sim import WARP_INSTALL_HINT, default_backend
 from labcli.errors import LabError
 from labcli.plugins import registry
 from labcli.plugins.config import AgentConfig
-from labcli.plugins.framework import Checkpoint, Framework
+from labcli.plugins.framework import Checkpoint, Framework, StopTraining
 from labcli.runs import checkpoints, config, interrupt, loading, rundir, snapshot
 from labcli.runs import video as videos
-from labcli.runs.context import RunContext
+from labcli.runs.context import RunContext, StopAtRequest
 from labcli.runs.plan import TrainPlan
 from labcli.runs.progress import TrainProgress
 from labcli.runs.video import VideoSettings
@@ -39,6 +39,9 @@ from labcli.runs.video import VideoSettings
 class TrainOutcome:
     run: rundir.Run
     summary: dict[str, Any]
+    # How far the checkpoints' Policies acted from the live agent at most (see
+    # TrainContext.set_actor); None when the framework gave no actor.
+    policy_difference: float | None = None
 
 
 def check_device(device: str | None, backend: str | None = None) -> str:
@@ -168,7 +171,8 @@ def _start(plan: TrainPlan, fw: Framework, env: Any, run_: rundir.Run,
         "device": device, "backend": env.backend, "num_envs": env.num_envs,
         "started": now, "first_started": old.get("first_started", old.get("started", now)),
         **rundir.process_identity(), "state": rundir.RUNNING,
-        "versions": _versions(registry.loaded().provider(registry.FRAMEWORK, fw.name)),
+        "versions": _versions(fw.spec.library,
+                              registry.loaded().provider(registry.FRAMEWORK, fw.name)),
         "sessions": [*old.get("sessions", []), session],
     }
     if plan.resume is not None:
@@ -187,13 +191,12 @@ def _start(plan: TrainPlan, fw: Framework, env: Any, run_: rundir.Run,
                          pipeline, console, earlier_wall, changed)
 
 
-def _versions(fw_provider: registry.Provider) -> dict[str, str]:
+def _versions(library: str, fw_provider: registry.Provider) -> dict[str, str]:
     out = {"lab": __version__}
-    for dist in ("mujoco", "torch", "gymnasium", fw_provider.dist):
-        try:
-            out[dist] = version(dist)
-        except PackageNotFoundError:
-            continue
+    for dist in ("mujoco", "torch", "gymnasium", library, fw_provider.dist):
+        found = dist and registry.installed(dist)
+        if found:
+            out[dist] = found
     return out
 
 
@@ -253,8 +256,10 @@ def _run_training(fw: Framework, env: Any, cfg: AgentConfig, run: rundir.Run,
     rundir.write_json(run.dir, rundir.SUMMARY, summary_of(rundir.RUNNING))
     state, error, wrapped = rundir.FAILED, None, None
     try:
-        wrapped = wrappers.apply(env, pipeline, fw.name)
-        with progress, mjwarnings.counted(ctx.mujoco_warnings):
+        wrapped = wrappers.apply(StopAtRequest(env, stop), pipeline, fw.name)
+        # StopTraining out of a plugin that leaves ctx.training out: its saves stand.
+        with progress, mjwarnings.counted(ctx.mujoco_warnings), \
+                contextlib.suppress(StopTraining):
             fw.train(wrapped, ctx)
         state = rundir.INTERRUPTED if stop.requested else rundir.FINISHED
     except LabError as exc:  # diverged (exit 3), or the run dir cannot be written any more
@@ -278,7 +283,7 @@ def _run_training(fw: Framework, env: Any, cfg: AgentConfig, run: rundir.Run,
         raise error
     if state == rundir.INTERRUPTED:
         summary["signal"] = stop.signum
-    return TrainOutcome(run, summary)
+    return TrainOutcome(run, summary, ctx.policy_difference)
 
 
 def _close(writer: SummaryWriter, console: Console) -> None:

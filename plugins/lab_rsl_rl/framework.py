@@ -16,7 +16,7 @@ from torch import nn
 from lab_rsl_rl.adapter import OBS_GROUP, RslRlVecEnv
 from lab_rsl_rl.config import RslRlPpoConfig
 from labcli.errors import LabError, first_line
-from labcli.plugins.framework import Framework, TrainContext
+from labcli.plugins.framework import Framework, StopTraining, TrainContext
 from labcli.plugins.policy import (
     ObsNormalizer,
     Policy,
@@ -65,10 +65,6 @@ def runner_config(cfg: RslRlPpoConfig) -> dict[str, Any]:
     }
 
 
-class _Stop(Exception):
-    """Leaves the runner's loop at once when lab asks training to stop."""
-
-
 class _LabLogger:
     """Stands in for RSL-RL's Logger inside the runner. lab's env already counts episodes on the
     device and TrainContext writes TensorBoard, progress and checkpoints, so this forwards the
@@ -84,10 +80,7 @@ class _LabLogger:
         pass
 
     def process_env_step(self, *args: Any, **kwargs: Any) -> None:
-        # Called after every env step: Ctrl-C mid-rollout stops here, and train() then saves
-        # the last finished iteration.
-        if self.ctx.stop_requested:
-            raise _Stop
+        pass  # episodes are counted by lab's env
 
     def log(self, *, it: int, collect_time: float, learn_time: float,
             loss_dict: dict[str, float], learning_rate: float, action_std: torch.Tensor,
@@ -101,7 +94,7 @@ class _LabLogger:
         scalars["Perf/learning_time"] = learn_time
         if self.ctx.end_iteration(iteration, iteration * self.steps_per_iteration, self.save,
                                   scalars):
-            raise _Stop
+            raise StopTraining  # out of the runner's loop, into ctx.training
 
     def save_model(self, path: str, it: int) -> None:
         pass  # no external logging service to upload to
@@ -119,6 +112,12 @@ class LabRunner(OnPolicyRunner):
                      "action_size": env.num_actions, "actor": self.cfg["actor"]}
         self.logger = _LabLogger(ctx, self.write_checkpoint, cfg.num_steps_per_env * env.num_envs)
         ctx.watch(self.alg.actor, self.alg.critic)
+        ctx.set_actor(self.act)
+
+    def act(self, obs: torch.Tensor) -> torch.Tensor:
+        """The actor's deterministic output, through its own normalizer."""
+        with torch.no_grad():
+            return self.alg.actor(TensorDict({OBS_GROUP: obs}, batch_size=[obs.shape[0]]))
 
     def write_checkpoint(self, path: Path) -> None:
         # "iter" is the number of iterations done, so that learn() after load() goes on with
@@ -150,9 +149,8 @@ class RslRlFramework(Framework):
             if ctx.resume is not None:
                 runner.resume(ctx.resume.path)
             ctx.restore_rng()
-            with contextlib.suppress(_Stop):  # raised once lab's checkpoint logic is done
+            with ctx.training(runner.write_checkpoint):
                 runner.learn(cfg.max_iterations - ctx.start_iteration)
-            ctx.save(runner.write_checkpoint)  # no-op unless stopped mid-rollout
 
     def load_policy(self, checkpoint: Path, env: Any, cfg: Any = None) -> Policy:
         # The checkpoint describes its own networks (see save): `cfg` is not needed.

@@ -31,7 +31,7 @@ from lab_sb3.plugin import ADAPTER, VEC_NORMALIZE
 from labcli import files
 from labcli.envs.wrappers import Step
 from labcli.errors import LabError, first_line
-from labcli.plugins.framework import Framework, TrainContext
+from labcli.plugins.framework import Framework, StopTraining, TrainContext
 from labcli.plugins.policy import CHECKPOINT_LIMIT, ObsNormalizer, Policy, one_torch_thread
 
 ACTIVATIONS = {"tanh": nn.Tanh, "relu": nn.ReLU, "elu": nn.ELU}
@@ -42,7 +42,8 @@ MAX_MEMBER_BYTES = 1 << 30  # a member larger than this is not a policy-sized ne
 
 
 class _LabCallback(BaseCallback):
-    """Reports each finished PPO iteration to lab and stops on Ctrl-C at the next env step."""
+    """Reports each finished PPO iteration to lab. (A stop mid-rollout reaches SB3 as
+    StopTraining from the env's step.)"""
 
     def __init__(self, ctx: TrainContext, save: Any, normalizer: VecNormalize | None = None):
         super().__init__()
@@ -73,10 +74,11 @@ class _LabCallback(BaseCallback):
             # save the dropped rollout's observations into the last complete iteration's.
             self.boundary_stats = copy.deepcopy((self.normalizer.obs_rms, self.normalizer.ret_rms))
         self.iteration += 1
-        self.ctx.end_iteration(self.iteration, self.model.num_timesteps, self.save)
+        if self.ctx.end_iteration(self.iteration, self.model.num_timesteps, self.save):
+            raise StopTraining  # out of model.learn, into ctx.training
 
     def _on_step(self) -> bool:
-        return not self.ctx.stop_requested
+        return True
 
 
 class Sb3Framework(Framework):
@@ -115,15 +117,14 @@ class Sb3Framework(Framework):
 
         callback = _LabCallback(ctx, save, env if isinstance(env, VecNormalize) else None)
         ctx.watch(model.policy)
+        ctx.set_actor(lambda obs: _act(model, callback, obs))
         remaining = cfg.max_iterations - ctx.start_iteration
         try:
-            with one_torch_thread(ctx.device):
+            with one_torch_thread(ctx.device), ctx.training(save):
                 model.learn(total_timesteps=remaining * cfg.n_steps * env.num_envs,
                             callback=callback, reset_num_timesteps=ctx.resume is None,
                             progress_bar=False)
-            if not ctx.stop_requested:
                 callback.end_iteration()  # the last update has no next rollout start
-            ctx.save(save)
         finally:
             model.logger.close()  # its TensorBoard writer holds a file of the run dir open
 
@@ -139,6 +140,18 @@ class Sb3Framework(Framework):
                                        torch.as_tensor(saved["obs_rms"].var), saved["epsilon"],
                                        saved["clip_obs"])
         return Policy(actor, normalizer).eval()
+
+
+def _act(model: PPO, callback: _LabCallback, obs: torch.Tensor) -> np.ndarray:
+    """The deterministic action SB3 takes, through VecNormalize's own normalization with the
+    statistics a checkpoint saves (the last complete iteration's)."""
+    raw = obs.cpu().numpy()
+    normalizer = callback.normalizer
+    if normalizer is not None and normalizer.norm_obs:
+        obs_rms = callback.boundary_stats[0] if callback.boundary_stats else normalizer.obs_rms
+        raw = normalizer._normalize_obs(raw, obs_rms)
+    actions, _ = model.predict(raw, deterministic=True)
+    return actions
 
 
 def policy_kwargs(cfg: Sb3PPOConfig) -> dict[str, Any]:

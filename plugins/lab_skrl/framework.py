@@ -151,17 +151,17 @@ class SkrlFramework(Framework):
 
         agent.enable_training_mode(True)
         ctx.watch(agent.policy, agent.value)
-        with one_torch_thread(ctx.device):
+        ctx.set_actor(lambda obs: _act(agent, obs))
+        # A stop mid-rollout raises StopTraining from env.step: that rollout is dropped, and
+        # ctx.training checkpoints the last complete iteration.
+        with one_torch_thread(ctx.device), ctx.training(save):
             obs, _ = env.reset()
             ctx.restore_rng()
             for iteration in range(ctx.start_iteration + 1, cfg.max_iterations + 1):
-                obs, complete = _collect_and_update(agent, env, obs, ctx, iteration)
-                if not complete:
-                    break  # stopped mid-rollout: the partial rollout is dropped, not trained on
+                obs = _collect_and_update(agent, env, obs, ctx, iteration)
                 steps += cfg.rollouts * env.num_envs
                 if ctx.end_iteration(iteration, steps, save, _pop_tracking(agent)):
                     break
-        ctx.save(save)  # after a stop mid-rollout: the last complete iteration
 
     def load_policy(self, checkpoint: Path, env: Any, cfg: Any = None) -> Policy:
         # The checkpoint describes its own networks (see save): `cfg` is not needed.
@@ -187,17 +187,20 @@ class SkrlFramework(Framework):
         return Policy(actor.net, normalizer).eval()
 
 
+def _act(agent: PPO, obs: torch.Tensor) -> torch.Tensor:
+    """The policy's mean action, through skrl's own (frozen) observation preprocessor."""
+    with torch.no_grad():
+        inputs = {"observations": agent._observation_preprocessor(obs)}
+        return agent.policy.compute(inputs, role="policy")[0]
+
+
 def _collect_and_update(agent: PPO, env: SkrlEnv, obs: torch.Tensor, ctx: TrainContext,
-                        iteration: int) -> tuple[torch.Tensor, bool]:
+                        iteration: int) -> torch.Tensor:
     """One rollout of `cfg.rollouts` steps; skrl updates inside the last `post_interaction`.
-    Returns the next observations and False when a stop was asked before the rollout ended."""
+    Returns the next observations."""
     cfg: SkrlPPOConfig = ctx.cfg  # type: ignore[assignment]
     total = cfg.max_iterations * cfg.rollouts
     for step in range(cfg.rollouts):
-        # Checked before a step, never after the last one: once the update ran, the iteration
-        # is complete and gets reported (and checkpointed) as such.
-        if ctx.stop_requested:
-            return obs, False
         t = (iteration - 1) * cfg.rollouts + step
         agent.pre_interaction(timestep=t, timesteps=total)
         with torch.no_grad():
@@ -214,7 +217,7 @@ def _collect_and_update(agent: PPO, env: SkrlEnv, obs: torch.Tensor, ctx: TrainC
                 truncated=truncated, infos=info, timestep=t, timesteps=total)
         agent.post_interaction(timestep=t, timesteps=total)  # the update needs gradients
         obs = next_obs
-    return obs, True
+    return obs
 
 
 def _pop_tracking(agent: PPO) -> dict[str, float]:
