@@ -5,10 +5,12 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import shutil
 import signal
 import subprocess
 import sys
+from importlib.metadata import version
 from pathlib import Path
 
 import pytest
@@ -18,6 +20,7 @@ from oneline import assert_one_line_error
 from typer.testing import CliRunner
 
 from labcli.commands.app import app
+from labcli.plugins import registry
 
 SMALL = ["--num-envs", "4", "--max-iterations", "2", "--set", "agent.n_steps=8",
          "--set", "agent.batch_size=16", "--set", "agent.n_epochs=1",
@@ -104,9 +107,14 @@ def test_a_bad_config_file_is_one_line_exit_2_and_writes_nothing(tmp_path, conte
 def test_info_names_versions_gl_backend_and_what_works(tmp_path):
     result = lab("info", logs=tmp_path)
     assert result.exit_code == 0, result.output
-    for phrase in ("mujoco", "torch", "stable-baselines3", "framework sb3", "MUJOCO_GL",
-                   "offscreen rendering", "works", "CUDA", "mujoco_warp"):
+    for phrase in ("mujoco", "torch", "MUJOCO_GL", "offscreen rendering", "works", "CUDA",
+                   "mujoco_warp"):
         assert phrase in result.stdout
+    # Each framework's library and its version, as the plugin declares it (FrameworkSpec.library).
+    for name in ("sb3", "rsl_rl", "skrl", "rl_games"):
+        library = registry.get_framework(name).library
+        assert re.search(rf"framework {name} +{library} {re.escape(version(library))}, plugin "
+                         r"from lab", result.stdout), result.stdout
 
 
 def test_the_viewer_without_a_display_says_what_to_do(tmp_path):

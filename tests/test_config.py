@@ -1,7 +1,8 @@
 """Config resolution: --set parsing, YAML files, the merge order and the errors a user sees.
 
-The order under test is model defaults ← the task's defaults for the framework ← --config FILE ←
---set ← explicit flags, with dict-valued settings (reward weights) merged key by key.
+The order under test is model defaults ← the framework's defaults for the task ← the task's
+defaults for the framework ← --config FILE ← --set ← explicit flags, with dict-valued settings
+(reward weights) merged key by key.
 """
 
 from __future__ import annotations
@@ -225,6 +226,24 @@ def test_built_in_framework_defaults_apply_to_their_framework_only():
     assert rsl_env.num_envs == defaults["rsl_rl"]["env"]["num_envs"]
     assert rsl_agent.max_iterations == defaults["rsl_rl"]["agent"]["max_iterations"]
     assert sb3_env.num_envs == defaults["sb3"]["env"]["num_envs"]
+
+
+def test_a_framework_gives_defaults_for_the_tasks_it_knows_and_the_task_s_own_win():
+    fw = dataclasses.replace(registry.get_framework("sb3"), task_defaults={
+        "cartpole": {"env": {"num_envs": 96, "decimation": 3, "reward_weights": {"alive": 2.0}},
+                     "agent": {"n_steps": 48, "gamma": 0.97}},
+        "other_task": {"env": {"num_envs": 7}, "agent": {}},  # another task's: never used
+    })
+    task = dataclasses.replace(registry.get_task("cartpole"), framework_defaults={
+        "sb3": {"env": {"decimation": 4, "reward_weights": {"upright": 3.0}},
+                "agent": {"n_steps": 16}}})
+    env, agent = resolve_configs(task, fw, overrides=["agent.batch_size=64"])
+    assert env.num_envs == 96 and agent.gamma == 0.97  # the framework's, where the task is silent
+    assert env.decimation == 4 and agent.n_steps == 16  # the task's own win
+    assert env.reward_weights == {**DEFAULT_WEIGHTS, "alive": 2.0, "upright": 3.0}
+    assert agent.batch_size == 64  # and --set over both
+    env, _ = resolve_configs(dataclasses.replace(task, framework_defaults={}), fw)
+    assert env.num_envs == 96 and env.decimation == 3
 
 
 def test_reward_weights_merge_key_by_key_across_layers(tmp_path):

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import functools
 from dataclasses import dataclass, field
-from importlib.metadata import entry_points
+from importlib.metadata import PackageNotFoundError, entry_points, version
 from typing import Any
 
 import pluggy
@@ -171,6 +171,14 @@ def get_task(name: str) -> Any:
 
         return task_spec(name)
     return loaded().get(TASK, name)
+
+
+def installed(dist: str) -> str | None:
+    """The installed version of distribution `dist`, or None."""
+    try:
+        return version(dist)
+    except PackageNotFoundError:
+        return None
 
 
 def get_framework(name: str) -> FrameworkSpec:

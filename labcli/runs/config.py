@@ -198,10 +198,11 @@ def resolve(spec: TaskSpec, fw: FrameworkSpec, *, base: tuple[dict, dict] | None
             config_file: Path | None = None, overrides: Sequence[str] = (),
             num_envs: int | None = None, max_iterations: int | None = None,
             seed: int | None = None) -> tuple[TaskConfig, AgentConfig]:
-    """defaults ← task's defaults for this framework ← `base` (a resumed run) ← file ← --set ←
-    the explicit flags."""
-    defaults = spec.framework_defaults.get(fw.name, {})
-    layers = [{"env": dict(defaults.get("env", {})), "agent": dict(defaults.get("agent", {}))}]
+    """defaults ← the framework's defaults for this task ← the task's defaults for this
+    framework ← `base` (a resumed run) ← file ← --set ← the explicit flags."""
+    layers = [{"env": dict(defaults.get("env", {})), "agent": dict(defaults.get("agent", {}))}
+              for defaults in (fw.task_defaults.get(spec.name, {}),
+                               spec.framework_defaults.get(fw.name, {}))]
     if base is not None:
         layers.append({"env": base[0], "agent": base[1]})
     if config_file is not None:

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import importlib.util
-from importlib.metadata import PackageNotFoundError, version
 
 import mujoco
 import torch
@@ -14,8 +13,7 @@ from labcli.envs.render.scene import SceneRenderer
 from labcli.errors import LabError
 from labcli.plugins import registry
 
-PACKAGES = ("mujoco", "torch", "gymnasium", "stable-baselines3", "rsl-rl-lib", "skrl",
-            "mujoco-warp", "warp-lang")
+PACKAGES = ("mujoco", "torch", "gymnasium", "mujoco-warp", "warp-lang")
 # One sphere: the smallest scene whose rendering exercises the whole GL path.
 PROBE_MODEL = '<mujoco><worldbody><geom type="sphere" size="0.1"/></worldbody></mujoco>'
 
@@ -24,13 +22,13 @@ def collect() -> dict[str, str]:
     """What `lab info` prints, as name → value."""
     out = {"lab": __version__}
     for dist in PACKAGES:
-        try:
-            out[dist] = version(dist)
-        except PackageNotFoundError:
-            out[dist] = "not installed"
+        out[dist] = registry.installed(dist) or "not installed"
     reg = registry.loaded()
     for name in reg.names(registry.FRAMEWORK):
-        out[f"framework {name}"] = f"from {reg.provider(registry.FRAMEWORK, name)}"
+        library = reg.get(registry.FRAMEWORK, name).library
+        found = library and (registry.installed(library) or "not installed")
+        out[f"framework {name}"] = (f"{library} {found}, " if library else "") + \
+            f"plugin from {reg.provider(registry.FRAMEWORK, name)}"
     out["MUJOCO_GL"] = f"{gl.choice.backend or 'none'} ({gl.choice.origin})"
     rendering = _rendering()
     out["offscreen rendering (--video)"] = rendering

@@ -14,7 +14,7 @@ VEC_NORMALIZE = WrapperSpec(
 SPEC = FrameworkSpec(
     name="sb3", framework="lab_sb3.framework:Sb3Framework",
     agent_config="lab_sb3.config:Sb3PPOConfig",
-    wrappers=(ADAPTER, VEC_NORMALIZE), checkpoint_suffix=".zip",
+    wrappers=(ADAPTER, VEC_NORMALIZE), library="stable-baselines3", checkpoint_suffix=".zip",
     description="Stable-Baselines3 PPO (numpy VecEnv; VecNormalize optional)")
 
 
