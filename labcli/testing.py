@@ -47,6 +47,8 @@ SMALL_AGENTS = {
                "agent.critic_hidden_dims=[16]"],
     "skrl": ["agent.rollouts=8", "agent.learning_epochs=2", "agent.mini_batches=2",
              "agent.hidden_sizes=[16]"],
+    "rl_games": ["agent.horizon_length=8", "agent.mini_epochs=2",
+                 "agent.minibatch_size_per_env=4", "agent.units=[16]"],
 }
 EXPORT_TOLERANCE = 1e-5
 # Resumed and unbroken runs do the same float operations in the same order: they agree exactly
@@ -156,7 +158,8 @@ def check_adapter(name: str, probe: Probe | None = None) -> None:
 def check_training_outputs(name: str, tmp_path: Path, overrides: Sequence[str] = (),
                            iterations: int = 3) -> TrainOutcome:
     """A few iterations write checkpoints named by `checkpoint_path` at the save interval and at
-    the end, a consistent summary.json and manifest, and the common TensorBoard tags."""
+    the end, a consistent summary.json and manifest (with the version of the framework's
+    `library`), and the common TensorBoard tags."""
     fw = registry.get_framework(name)
     outcome = train_small(name, tmp_path, iterations,
                      [*overrides, SHORT_EPISODE, "agent.save_interval=2"])
@@ -178,7 +181,12 @@ def check_training_outputs(name: str, tmp_path: Path, overrides: Sequence[str] =
         f"{name}: summary steps {steps} is not a whole number of {NUM_ENVS}-env iterations")
     assert summary["checkpoint"] == expected[-1].name, f"{name}: summary {summary['checkpoint']}"
     assert summary["mean_return"] is not None, f"{name}: no episode stats reached the summary"
-    assert json.loads((run_dir / rundir.MANIFEST).read_text())["state"] == "finished"
+    manifest = json.loads((run_dir / rundir.MANIFEST).read_text())
+    assert manifest["state"] == "finished", f"{name}: manifest state {manifest['state']}"
+    if fw.library:
+        assert manifest["versions"].get(fw.library) == registry.installed(fw.library), (
+            f"{name}: the manifest's versions {manifest['versions']} lack its library "
+            f"{fw.library} {registry.installed(fw.library)}")
     scalars = read_scalars(run_dir)
     env = make_env(1)
     try:
@@ -216,10 +224,16 @@ def _observations(n: int = 64) -> torch.Tensor:
 
 def check_policy_roundtrip(name: str, tmp_path: Path, overrides: Sequence[str] = (),
                            normalized: bool = True) -> Policy:
-    """The last checkpoint loads as a Policy that gives the same deterministic actions every
-    time it is loaded and called, in [-1, 1]; with `normalized`, the normalizer is inside."""
+    """The framework gives lab its live agent (`ctx.set_actor`), so that each checkpoint's
+    Policy is checked to act as the agent it was saved from, on the env's real observations
+    (training fails otherwise); the last checkpoint loads as a Policy that gives the same
+    deterministic actions every time it is loaded and called, in [-1, 1]; with `normalized`,
+    the normalizer is inside."""
     fw = registry.get_framework(name)
     outcome = train_small(name, tmp_path, 2, [*overrides, SHORT_EPISODE])
+    assert outcome.policy_difference is not None, (
+        f"{name}: train() never calls ctx.set_actor, so nothing shows that its Policy acts as "
+        "the trained agent")
     checkpoint = fw.checkpoints(outcome.run.dir)[-1].path
     obs = _observations()
     actions = []
@@ -286,7 +300,7 @@ def check_resume(name: str, tmp_path: Path, overrides: Sequence[str] = ()) -> fl
     # checkpoint, is saved by the stop), then resumed: the partial rollout is dropped as if it
     # never happened.
     steps_per_env = per_iteration // NUM_ENVS
-    with _sigint_at_env_step(3 * steps_per_env + steps_per_env // 2):
+    with sigint_at_env_step(3 * steps_per_env + steps_per_env // 2):
         stopped = train_small(name, tmp_path / "interrupted", 4, sets)
     assert stopped.summary["state"] == rundir.INTERRUPTED and stopped.summary["iterations"] == 3, (
         f"{name}: a stop in the fourth rollout gave {stopped.summary}")
@@ -304,7 +318,7 @@ def check_resume(name: str, tmp_path: Path, overrides: Sequence[str] = ()) -> fl
 
 
 @contextlib.contextmanager
-def _sigint_at_env_step(n: int) -> Iterator[None]:
+def sigint_at_env_step(n: int) -> Iterator[None]:
     """Sends this process SIGINT during the `n`-th env step from now, as Ctrl-C would."""
     original = LabVecEnv.step
     calls = 0

@@ -19,6 +19,7 @@ from lab_cartpole.cartpole import Cartpole
 from lab_cartpole.config import CartpoleConfig
 from lab_sb3.config import Sb3PPOConfig
 from oneline import assert_one_line_error
+from pydantic import model_validator
 from runfiles import copy_checkpoint, snapshot_of
 from typer.testing import CliRunner
 
@@ -94,6 +95,33 @@ class ShortTask:
     def register_tasks(self, register):
         register(dataclasses.replace(registry.get_task("cartpole"), name="cartpole_short",
                                      task=PositionsOnly, config=CartpoleConfig))
+
+
+class _EvenBatchConfig(Sb3PPOConfig):
+    """A plugin's config with a check across its settings: a pydantic model validator."""
+
+    @model_validator(mode="after")
+    def _even(self):
+        if self.batch_size % 2:
+            raise ValueError(f"batch_size must be even, got {self.batch_size}")
+        return self
+
+
+class EvenBatchSb3:
+    @hookimpl
+    def register_frameworks(self, register):
+        sb3 = registry.get_framework("sb3")
+        adapter = dataclasses.replace(sb3.adapter, name="sb3_even.adapter", framework="sb3_even")
+        register(dataclasses.replace(sb3, name="sb3_even", agent_config=_EvenBatchConfig,
+                                     wrappers=(adapter,)))
+
+
+def test_a_config_s_model_validator_that_refuses_a_value_is_one_line(register_plugin, tmp_path):
+    register_plugin(EvenBatchSb3(), "even")
+    result = lab("train", "--task", "cartpole", "--framework", "sb3_even",
+                 "--set", "agent.batch_size=17", logs=tmp_path / "logs")
+    assert_one_line_error(result, "bad agent settings", "batch_size must be even, got 17")
+    assert not (tmp_path / "logs").exists()
 
 
 def test_a_checkpoint_of_another_task_or_size_names_the_mismatch(register_plugin, tmp_path):

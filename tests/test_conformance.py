@@ -2,24 +2,24 @@
 
 from __future__ import annotations
 
+import dataclasses
+import re
+
 import numpy as np
 import pytest
 import torch
+from lab_rl_games.framework import RlGamesFramework
+from lab_rl_games.plugin import SPEC as RL_GAMES
 
 from labcli import testing
+from labcli.errors import LabError
+from labcli.plugins.hookspecs import hookimpl
+from labcli.plugins.policy import Policy
 
-FRAMEWORKS = ["sb3", "rsl_rl", "skrl"]
+FRAMEWORKS = ["sb3", "rsl_rl", "skrl", "rl_games"]
 
 # Tiny agents: 8 steps per env per iteration, two small epochs, 16-unit networks.
-SMALL = {
-    "sb3": ["agent.n_steps=8", "agent.batch_size=16", "agent.n_epochs=2",
-            "agent.net_arch=[16,16]", "agent.normalize_obs=true"],
-    "rsl_rl": ["agent.num_steps_per_env=8", "agent.num_learning_epochs=2",
-               "agent.num_mini_batches=2", "agent.actor_hidden_dims=[16,16]",
-               "agent.critic_hidden_dims=[16,16]"],
-    "skrl": ["agent.rollouts=8", "agent.learning_epochs=2", "agent.mini_batches=2",
-             "agent.hidden_sizes=[16,16]"],
-}
+SMALL = testing.SMALL_AGENTS
 
 
 def _probe_sb3(env, actions: torch.Tensor) -> testing.ProbeStep:
@@ -40,11 +40,18 @@ def _probe_skrl(env, actions: torch.Tensor) -> testing.ProbeStep:
     return testing.ProbeStep(obs, reward, terminated, truncated)
 
 
+def _probe_rl_games(env, actions: torch.Tensor) -> testing.ProbeStep:
+    obs, reward, dones, infos = env.step(actions)
+    truncated = infos["time_outs"].bool()
+    return testing.ProbeStep(obs, reward, dones.bool() & ~truncated, truncated)
+
+
 # The learning check runs the task's defaults at 16 envs; SB3's at 32, whose 32-step rollouts
 # fill its batch of 1024 (seeds 0-2 gained 1.8-2.3x in 25 iterations; at 16 envs, 1.4x).
-IMPROVE = {"sb3": {"num_envs": 32}, "rsl_rl": {}, "skrl": {}}
+IMPROVE = {"sb3": {"num_envs": 32}, "rsl_rl": {}, "skrl": {}, "rl_games": {}}
 
-PROBES = {"sb3": _probe_sb3, "rsl_rl": _probe_rsl_rl, "skrl": _probe_skrl}
+PROBES = {"sb3": _probe_sb3, "rsl_rl": _probe_rsl_rl, "skrl": _probe_skrl,
+          "rl_games": _probe_rl_games}
 
 
 @pytest.mark.parametrize("name", FRAMEWORKS)
@@ -85,3 +92,68 @@ def test_training_improves_the_return(name, tmp_path):
 def test_check_framework_runs_every_check(tmp_path):
     testing.check_framework("rsl_rl", tmp_path, SMALL["rsl_rl"], PROBES["rsl_rl"],
                             improve_overrides=None)
+
+
+# The suite catches a Policy that does not act as the trained agent --------------------------
+class _StdAsVariance(RlGamesFramework):
+    """rl_games whose Policy's normalizer is handed the std where the variance goes."""
+
+    def load_policy(self, checkpoint, env, cfg):
+        policy = super().load_policy(checkpoint, env, cfg)
+        policy.normalizer.std.copy_(policy.normalizer.std.sqrt())
+        return policy
+
+
+class _ConstantActor(RlGamesFramework):
+    """rl_games whose Policy ignores the observations."""
+
+    def load_policy(self, checkpoint, env, cfg):
+        policy = super().load_policy(checkpoint, env, cfg)
+        zeros = torch.zeros(1, env.single_observation_space.shape[0])
+        return Policy(_Constant(policy(zeros)), policy.normalizer).eval()
+
+
+class _Constant(torch.nn.Module):
+    def __init__(self, action: torch.Tensor):
+        super().__init__()
+        self.register_buffer("action", action)
+
+    def forward(self, obs: torch.Tensor) -> torch.Tensor:
+        return self.action.expand(obs.shape[0], -1)
+
+
+class _NoActor(RlGamesFramework):
+    """rl_games that never shows lab its live agent."""
+
+    def train(self, env, ctx):
+        ctx.set_actor = lambda actor: None
+        super().train(env, ctx)
+
+
+def _register_variant(register_plugin, name: str, cls: type) -> None:
+    adapter = dataclasses.replace(RL_GAMES.adapter, name=f"{name}.adapter", framework=name)
+    spec = dataclasses.replace(RL_GAMES, name=name, framework=cls, wrappers=(adapter,))
+
+    class Plugin:
+        @hookimpl
+        def register_frameworks(self, register):
+            register(spec)
+
+    register_plugin(Plugin(), f"test-{name}")
+
+
+@pytest.mark.parametrize(("cls", "how_far"), [(_StdAsVariance, 1e-3), (_ConstantActor, 1e-2)],
+                         ids=["std-as-variance", "constant-actor"])
+def test_the_suite_fails_a_policy_that_does_not_act_as_the_trained_agent(
+        cls, how_far, register_plugin, tmp_path):
+    _register_variant(register_plugin, "broken", cls)
+    with pytest.raises(LabError, match=r"the Policy loaded from model_\d+\.pth acts up to "
+                                       r"(\S+) away from the agent") as err:
+        testing.check_policy_roundtrip("broken", tmp_path, SMALL["rl_games"])
+    assert float(re.search(r"acts up to (\S+) away", err.value.message).group(1)) > how_far
+
+
+def test_the_suite_fails_a_framework_that_never_shows_its_live_agent(register_plugin, tmp_path):
+    _register_variant(register_plugin, "silent", _NoActor)
+    with pytest.raises(AssertionError, match="never calls ctx.set_actor"):
+        testing.check_policy_roundtrip("silent", tmp_path, SMALL["rl_games"])

@@ -4,6 +4,8 @@ picking an incomplete checkpoint."""
 
 from __future__ import annotations
 
+import contextlib
+import dataclasses
 import json
 import os
 import signal
@@ -15,10 +17,12 @@ from pathlib import Path
 
 import pytest
 import torch
+from lab_skrl.framework import SkrlFramework
 
 from labcli import testing
 from labcli.errors import LabError
 from labcli.plugins import registry
+from labcli.plugins.hookspecs import hookimpl
 from labcli.runs import checkpoints, rundir
 
 SB3_SMALL = ["--set", "agent.n_steps=8", "--set", "agent.batch_size=16", "--set",
@@ -143,6 +147,7 @@ UPDATES = {
     "sb3": ("stable_baselines3.ppo.ppo", "PPO", "train"),
     "rsl_rl": ("rsl_rl.algorithms.ppo", "PPO", "update"),
     "skrl": ("skrl.agents.torch.ppo.ppo", "PPO", "update"),
+    "rl_games": ("rl_games.common.a2c_common", "ContinuousA2CBase", "prepare_dataset"),
 }
 SMALL = testing.SMALL_AGENTS
 
@@ -170,6 +175,37 @@ def test_sigint_during_the_update_checkpoints_that_iteration(name, tmp_path, mon
     assert [c.iteration for c in fw.checkpoints(outcome.run.dir)] == [2]
     resumed = testing.train_small(name, tmp_path, 3, SMALL[name], checkpoint=checkpoints.LATEST)
     assert resumed.run.dir == outcome.run.dir and resumed.summary["state"] == rundir.FINISHED
+
+
+class _NoTrainingContext(SkrlFramework):
+    """skrl whose train leaves `ctx.training` out: StopTraining escapes it."""
+
+    def train(self, env, ctx):
+        ctx.training = lambda save: contextlib.nullcontext()
+        super().train(env, ctx)
+
+
+def test_a_stop_that_escapes_a_plugin_s_train_ends_the_run_keeping_its_checkpoints(
+        register_plugin, tmp_path):
+    skrl = registry.get_framework("skrl")
+    adapter = dataclasses.replace(skrl.adapter, name="careless.adapter", framework="careless")
+
+    class Plugin:
+        @hookimpl
+        def register_frameworks(self, register):
+            register(dataclasses.replace(skrl, name="careless", framework=_NoTrainingContext,
+                                         wrappers=(adapter,)))
+
+    register_plugin(Plugin(), "careless")
+    steps_per_iteration = 8  # agent.rollouts
+    with testing.sigint_at_env_step(3 * steps_per_iteration + 4):  # mid-way through the 4th
+        outcome = testing.train_small("careless", tmp_path, 10,
+                                      [*SMALL["skrl"], "agent.save_interval=2"])
+    assert outcome.summary["state"] == rundir.INTERRUPTED
+    # Iteration 3, not due, goes unsaved without ctx.training; iteration 2's checkpoint stands.
+    assert outcome.summary["checkpoint"] == "model_2.pt"
+    assert [c.iteration for c in registry.get_framework("careless").checkpoints(
+        outcome.run.dir)] == [2]
 
 
 # SIGKILL mid-write: the child writes its next checkpoint slowly, and is killed half-way.

@@ -67,7 +67,7 @@ def fresh_copy(run_dir: Path, tmp_path: Path) -> tuple[Path, Path]:
 
 # Resume: all or nothing -----------------------------------------------------------------------
 REFUSED = {"sb3": "agent.net_arch=[8]", "rsl_rl": "agent.actor_hidden_dims=[8]",
-           "skrl": "agent.hidden_sizes=[8]"}
+           "skrl": "agent.hidden_sizes=[8]", "rl_games": "agent.units=[8]"}
 
 
 @pytest.mark.parametrize("framework", FRAMEWORKS)
@@ -89,7 +89,8 @@ def saved_learning_rate(framework: str, checkpoint: Path) -> float:
         with zipfile.ZipFile(checkpoint) as archive, archive.open("policy.optimizer.pth") as f:
             state = torch.load(f, weights_only=True)
     else:
-        key = {"rsl_rl": "optimizer_state_dict", "skrl": "optimizer"}[framework]
+        key = {"rsl_rl": "optimizer_state_dict", "skrl": "optimizer",
+               "rl_games": "optimizer"}[framework]
         state = torch.load(checkpoint, weights_only=True)[key]
     return state["param_groups"][0]["lr"]
 
@@ -98,7 +99,8 @@ def saved_learning_rate(framework: str, checkpoint: Path) -> float:
 def test_a_resume_applies_records_and_saves_what_it_may_change(framework, trained, tmp_path):
     logs, run_dir = fresh_copy(trained[framework], tmp_path)
     schedule = {"rsl_rl": ["--set", "agent.schedule=fixed"],
-                "skrl": ["--set", "agent.kl_adaptive_lr=false"]}.get(framework, [])
+                "skrl": ["--set", "agent.kl_adaptive_lr=false"],
+                "rl_games": ["--set", "agent.lr_schedule=constant"]}.get(framework, [])
     if schedule:  # an adaptive learning rate would move: start a run where it is fixed
         logs = tmp_path / "fixed"
         run_dir = train(logs, framework, *schedule)
@@ -171,15 +173,19 @@ def test_a_zip_of_junk_under_a_checkpoint_name_is_never_picked(trained, tmp_path
     assert checkpoints.latest_complete(fw, run_dir).iteration == 2
 
 
-@pytest.mark.parametrize("framework", ["rsl_rl", "skrl"])
+WEIGHTS = {"rsl_rl": "actor_state_dict", "skrl": "policy", "rl_games": "model"}
+
+
+@pytest.mark.parametrize("framework", list(WEIGHTS))
 def test_a_checkpoint_with_nan_weights_is_refused_before_anything_is_written(framework, trained,
                                                                               tmp_path):
     logs, run_dir = fresh_copy(trained[framework], tmp_path)
     (run_dir / "exported").mkdir()
     (run_dir / "exported" / "policy.onnx").write_text("the previous export")
-    path = run_dir / "model_2.pt"
+    name = checkpoints_name(framework, 2)
+    path = run_dir / name
     saved = torch.load(path, weights_only=True)
-    weights = saved["actor_state_dict" if framework == "rsl_rl" else "policy"]
+    weights = saved[WEIGHTS[framework]]
     for tensor in weights.values():
         if tensor.is_floating_point():
             tensor.fill_(float("nan"))
@@ -189,7 +195,7 @@ def test_a_checkpoint_with_nan_weights_is_refused_before_anything_is_written(fra
     for args in (["play", "--last"], ["export", "onnx"],
                  ["train", "--task", "cartpole", "--framework", framework, "--checkpoint",
                   "latest", "--max-iterations", "3"]):
-        assert_one_line_error(lab(*args, logs=logs), "model_2.pt holds non-finite weights")
+        assert_one_line_error(lab(*args, logs=logs), f"{name} holds non-finite weights")
     assert snapshot_of(logs) == before
     assert (run_dir / "exported" / "policy.onnx").read_text() == "the previous export"
 
@@ -213,22 +219,34 @@ SKRL_DAMAGE = {
         running_mean=torch.zeros(7), running_variance=torch.ones(7)),
     "no steps": lambda s: s["lab"].pop("steps"),
 }
+# rl_games' checkpoint describes no network (lab rebuilds it from the run's config): what can be
+# damaged is the model state and the counters.
+RL_GAMES_DAMAGE = {
+    "no model": lambda s: s.pop("model"),
+    "a layer of the wrong size": lambda s: s["model"].update(
+        {"a2c_network.mu.weight": torch.zeros(3, 3)}),
+    "normalizer of the wrong size": lambda s: s["model"].update(
+        {"running_mean_std.running_mean": torch.zeros(7, dtype=torch.float64)}),
+    "a list for the model": lambda s: s.update(model=[1, 2]),
+}
+DAMAGE = {"rsl_rl": RSL_RL_DAMAGE, "skrl": SKRL_DAMAGE, "rl_games": RL_GAMES_DAMAGE}
 
 
 @pytest.mark.parametrize("framework, damage", [
-    *(("rsl_rl", name) for name in RSL_RL_DAMAGE), *(("skrl", name) for name in SKRL_DAMAGE)])
+    (framework, name) for framework, cases in DAMAGE.items() for name in cases])
 def test_a_checkpoint_with_damaged_metadata_is_one_line(framework, damage, trained, tmp_path):
     logs, run_dir = fresh_copy(trained[framework], tmp_path)
-    path = run_dir / "model_2.pt"
+    name = checkpoints_name(framework, 2)
+    path = run_dir / name
     saved = torch.load(path, weights_only=True)
-    (RSL_RL_DAMAGE if framework == "rsl_rl" else SKRL_DAMAGE)[damage](saved)
+    DAMAGE[framework][damage](saved)
     torch.save(saved, path)
     remanifest(run_dir, 2)
     before = snapshot_of(logs)
     for args in (["play", "--last"], ["export", "onnx"],
                  ["train", "--task", "cartpole", "--framework", framework, "--checkpoint",
                   "latest", "--max-iterations", "3"]):
-        assert_one_line_error(lab(*args, logs=logs), "model_2.pt")
+        assert_one_line_error(lab(*args, logs=logs), name)
     assert snapshot_of(logs) == before
 
 

@@ -59,6 +59,8 @@ UPDATES = {
     "sb3": ("stable_baselines3.ppo.ppo", "PPO", "train"),
     "rsl_rl": ("rsl_rl.algorithms.ppo", "PPO", "update"),
     "skrl": ("skrl.agents.torch.ppo.ppo", "PPO", "update"),
+    # rl_games' rollout and update are one call; the rollout steps no optimizer.
+    "rl_games": ("rl_games.common.a2c_common", "ContinuousA2CBase", "train_epoch"),
 }
 
 
