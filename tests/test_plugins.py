@@ -5,18 +5,14 @@ reported without breaking the others, and clashes named with both distributions.
 from __future__ import annotations
 
 import dataclasses
-import importlib
 import io
-import shutil
-import subprocess
-import sys
 from collections.abc import Iterator
-from contextlib import contextmanager
 from pathlib import Path
 
 import pytest
 import torch
 import yaml
+from installed import on_sys_path, pip_install
 from rich.console import Console
 from typer.testing import CliRunner
 
@@ -35,28 +31,6 @@ EXAMPLE = Path(__file__).with_name("example_plugin")
 EXAMPLE_DIST, EXAMPLE_VERSION = "lab-example-reach", "0.1.0"
 EXAMPLE_PLUGIN, EXAMPLE_TASK = "example_reach", "point_reach"
 NOT_INSTALLED = "(not installed)"  # the version shown for a plugin registered by hand
-
-
-@contextmanager
-def on_sys_path(site: Path) -> Iterator[None]:
-    """Makes the distributions in `site` installed for the duration, then forgets every plugin,
-    module and registry entry they brought, so that later tests see the stock set."""
-    plugins_before = {name for name, _ in registry.pm.list_name_plugin()}
-    modules_before = set(sys.modules)
-    sys.path.insert(0, str(site))
-    importlib.invalidate_caches()
-    try:
-        yield
-    finally:
-        sys.path.remove(str(site))
-        for name, _ in registry.pm.list_name_plugin():
-            if name not in plugins_before:
-                registry.pm.unregister(name=name)
-        for name in set(sys.modules) - modules_before:
-            if str(site) in (getattr(sys.modules[name], "__file__", None) or ""):
-                del sys.modules[name]
-        importlib.invalidate_caches()
-        registry.reload()
 
 
 def write_dist(site: Path, dist: str, version: str, entry_point: str, source: str) -> None:
@@ -86,20 +60,8 @@ def line_with(name: str, output: str) -> str:
 # A real out-of-tree package, installed with pip --------------------------------------------------
 @pytest.fixture(scope="module")
 def example_site(tmp_path_factory) -> Path:
-    """The example package pip-installed (not editable) into a private --target dir. Built from a
-    copy, as an in-tree build would leave build/ and *.egg-info in the repo; offline, with the
-    setuptools already installed."""
-    root = tmp_path_factory.mktemp("example")
-    source, site = root / "source", root / "site"
-    shutil.copytree(EXAMPLE, source,
-                    ignore=shutil.ignore_patterns("build", "*.egg-info", "__pycache__"))
-    result = subprocess.run(
-        [sys.executable, "-m", "pip", "install", "--no-deps", "--no-build-isolation",
-         "--no-index", "--disable-pip-version-check", "--quiet", "--target", str(site),
-         str(source)],
-        capture_output=True, text=True)
-    assert result.returncode == 0, result.stderr
-    return site
+    """The example package pip-installed (not editable) into a private --target dir."""
+    return pip_install(EXAMPLE, tmp_path_factory.mktemp("example"))
 
 
 @pytest.fixture
