@@ -1,14 +1,14 @@
 """lab's cpu backend beside what users run today, measured in one run on one machine.
 
   python bench/bench_cpu.py [--envs 16,256,1024] [--seconds 3] [--repeats 3] [--peers DIR]
-                            [--frameworks sb3,rsl_rl,skrl] [--skip-train] [--json FILE]
+                            [--frameworks sb3,rsl_rl,skrl,rl_games] [--skip-train] [--json FILE]
   python bench/bench_cpu.py --profile 256     (only: lab's env step by part, in microseconds)
 
 a) env-steps/s of lab's cartpole (`LabVecEnv`, cpu backend, random actions, autoreset, torch
    tensors out) beside ../shared/peers/bench_step.py (run as a subprocess: raw `mujoco.rollout`,
    gymnasium sync/async vector envs of InvertedPendulum-v5) and beside raw `mujoco.rollout` on
    lab's own cartpole model with the same frame skip, measured here with the peer's protocol.
-b) the SB3 / RSL-RL / skrl adapters' cost per step at 256 envs, over the raw env's.
+b) the SB3 / RSL-RL / skrl / rl_games adapters' cost per step at 256 envs, over the raw env's.
 c) time until `lab train --task cartpole --framework F` first logs Metrics/success_rate >= 0.95
    (from its TensorBoard events), beside the peers' train_sb3_gym.py / train_rsl_rl_gym.py
    (seconds until mean return 950 on InvertedPendulum-v5: another criterion, so a rough ratio).
@@ -50,7 +50,8 @@ REPO = Path(__file__).resolve().parents[1]
 TASK = "cartpole"
 ADAPTER_ENVS = 256
 SUCCESS = 0.95
-DISTRIBUTIONS = ("mujoco", "torch", "stable-baselines3", "rsl-rl-lib", "skrl", "gymnasium")
+DISTRIBUTIONS = ("mujoco", "torch", "stable-baselines3", "rsl-rl-lib", "skrl", "rl-games",
+                 "gymnasium")
 # bench_step.py's lines, e.g. "rollout           N=256         38,954 env-steps/s".
 PEER_LINE = re.compile(r"^(\S+)\s+N=(\d+)\s+([\d,]+) env-steps/s")
 PEER_TRAIN_LINE = re.compile(r"solved in ([\d.]+) s, ([\d,]+) steps")
@@ -136,6 +137,7 @@ def throughput(envs: list[int], seconds: float, repeats: int,
 # Adapters -------------------------------------------------------------------------------------
 def adapter_steppers(env: LabVecEnv) -> dict[str, Callable[[], int]]:
     """One env step through each framework's adapter, with the actions that library passes."""
+    from lab_rl_games.adapter import RlGamesVecEnv
     from lab_rsl_rl.adapter import RslRlVecEnv
     from lab_sb3.adapter import Sb3VecEnv
     from lab_skrl.adapter import SkrlEnv
@@ -143,7 +145,7 @@ def adapter_steppers(env: LabVecEnv) -> dict[str, Callable[[], int]]:
     n, act = env.num_envs, env.single_action_space.shape[0]
     gen = torch.Generator().manual_seed(0)
     rng = np.random.default_rng(0)
-    sb3, rsl, skrl = Sb3VecEnv(env), RslRlVecEnv(env), SkrlEnv(env)
+    sb3, rsl, skrl, rlg = Sb3VecEnv(env), RslRlVecEnv(env), SkrlEnv(env), RlGamesVecEnv(env)
     sb3.reset()
     skrl.reset()
 
@@ -162,6 +164,7 @@ def adapter_steppers(env: LabVecEnv) -> dict[str, Callable[[], int]]:
         "sb3 (numpy)": stepper(lambda: sb3.step(rng.uniform(-1, 1, (n, act)).astype(np.float32))),
         "rsl_rl": stepper(lambda: rsl.step(torch_actions())),
         "skrl": stepper(lambda: skrl.step(torch_actions())),
+        "rl_games": stepper(lambda: rlg.step(torch_actions())),
     }
 
 
@@ -341,7 +344,7 @@ def main() -> None:
     p.add_argument("--seconds", type=float, default=3.0, help="per throughput measurement")
     p.add_argument("--repeats", type=int, default=3, help="interleaved runs; medians reported")
     p.add_argument("--peers", type=Path, default=REPO.parent / "shared" / "peers")
-    p.add_argument("--frameworks", default="sb3,rsl_rl,skrl")
+    p.add_argument("--frameworks", default="sb3,rsl_rl,skrl,rl_games")
     p.add_argument("--skip-train", action="store_true")
     p.add_argument("--json", type=Path, help="also write the figures here")
     p.add_argument("--profile", type=int, metavar="N",

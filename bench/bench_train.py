@@ -1,11 +1,11 @@
 """Where a training iteration's time goes, per framework, at the task's defaults.
 
-  python bench/bench_train.py [--task cartpole] [--frameworks sb3,rsl_rl,skrl]
+  python bench/bench_train.py [--task cartpole] [--frameworks sb3,rsl_rl,skrl,rl_games]
                               [--iterations 30] [--backend cpu|warp] [--num-envs N]
                               [--json FILE]
 
 Runs `lab train` in this process (a throwaway logs dir) with timers around `LabVecEnv.step`
-and `TrainContext.end_iteration`, and splits each iteration, from one `end_iteration` to the
+and lab's `TrainContext.end_iteration`, and splits each iteration, from one `end_iteration` to the
 next, into:
   env step      inside `LabVecEnv.step`: actions, physics substeps, task terms, resets, stats
   rollout rest  the rest of the rollout, from its first env step to its last: the policy's
@@ -35,8 +35,8 @@ from rich.console import Console
 from rich.table import Table
 
 from labcli.envs.env import LabVecEnv
-from labcli.plugins.framework import TrainContext
 from labcli.runs import session, training
+from labcli.runs.context import RunContext
 
 PARTS = ("env step", "rollout rest", "update", "lab")
 console = Console(width=None if sys.stdout.isatty() else 150)
@@ -85,9 +85,9 @@ def breakdown(task: str, framework: str, iterations: int, backend: str | None,
     device = session.check_device(None, backend)
     sync = torch.cuda.synchronize if torch.device(device).type == "cuda" else (lambda: None)
     clock = Clock(sync)
-    step, end_iteration = LabVecEnv.step, TrainContext.end_iteration
+    step, end_iteration = LabVecEnv.step, RunContext.end_iteration
     LabVecEnv.step = lambda self, *a, **k: clock.step(step, self, *a, **k)
-    TrainContext.end_iteration = lambda self, *a, **k: clock.end_iteration(
+    RunContext.end_iteration = lambda self, *a, **k: clock.end_iteration(
         end_iteration, self, *a, **k)
     try:
         with tempfile.TemporaryDirectory(prefix="bench_train_") as logs:
@@ -96,7 +96,7 @@ def breakdown(task: str, framework: str, iterations: int, backend: str | None,
                                      console=Console(file=io.StringIO()),
                                      command=["bench_train.py"])
     finally:
-        LabVecEnv.step, TrainContext.end_iteration = step, end_iteration
+        LabVecEnv.step, RunContext.end_iteration = step, end_iteration
     kept = clock.iterations[2:] or clock.iterations
     med = {k: statistics.median(it[k] for it in kept) for k in (*PARTS, "whole", "env steps")}
     steps = outcome.summary["steps"]
@@ -121,7 +121,7 @@ def table(rows: list[dict], task: str) -> None:
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--task", default="cartpole")
-    p.add_argument("--frameworks", default="sb3,rsl_rl,skrl")
+    p.add_argument("--frameworks", default="sb3,rsl_rl,skrl,rl_games")
     p.add_argument("--iterations", type=int, default=30)
     p.add_argument("--backend", choices=("cpu", "warp"))
     p.add_argument("--num-envs", type=int, help="the framework's default for the task if unset")
