@@ -3,14 +3,17 @@
 from __future__ import annotations
 
 import json
+import os
 import shutil
 import subprocess
 import sys
 from pathlib import Path
 
 import numpy as np
+import onnx
 import onnxruntime as ort
 import pytest
+import torch
 from oneline import assert_one_line_error
 from typer.testing import CliRunner
 
@@ -78,18 +81,44 @@ def test_export_onnx_runs_in_onnxruntime(logs):
     assert result.exit_code == 0, result.output
     assert "max abs difference from torch" in result.stdout
     exported = run_dir(logs) / "exported"
-    meta = json.loads((exported / "policy.json").read_text())
-    assert meta["input"]["size"] == 4 and meta["output"]["names"] == ["cart_force"]
-    assert meta["normalizer_included"] and meta["check"]["max_abs_diff"] < 1e-5
     session = ort.InferenceSession(str(exported / "policy.onnx"))
     actions = session.run(None, {"obs": np.zeros((7, 4), np.float32)})[0]
     assert actions.shape == (7, 1) and np.all(np.abs(actions) <= 1)
 
 
-def test_export_jit(logs):
-    result = lab("export", "jit", logs=logs)
-    assert result.exit_code == 0, result.output
-    assert (run_dir(logs) / "exported" / "policy.pt").is_file()
+def test_each_export_is_described_beside_it_and_inside_it(logs):
+    """policy.onnx.json and policy.pt.json each name their own file and say what a deployment
+    needs: observations with units and conventions, the action-to-command rule, the timing,
+    versions and provenance; the ONNX model and the TorchScript archive carry the same."""
+    exported = run_dir(logs) / "exported"
+    for fmt in ("onnx", "jit"):
+        assert lab("export", fmt, logs=logs).exit_code == 0
+    beside = {name: json.loads((exported / f"{name}.json").read_text())
+              for name in ("policy.onnx", "policy.pt")}
+    assert beside["policy.onnx"]["file"] == "policy.onnx" and beside["policy.onnx"]["format"] \
+        == "onnx"
+    assert beside["policy.pt"]["file"] == "policy.pt" and beside["policy.pt"]["format"] == "jit"
+    meta = beside["policy.onnx"]
+    assert (meta["task"], meta["framework"], meta["checkpoint"]) == ("cartpole", "sb3",
+                                                                     "model_2.zip")
+    assert meta["run"] == run_dir(logs).name and meta["iteration"] == 2
+    assert meta["versions"]["lab"] and meta["versions"]["stable-baselines3"] \
+        and meta["versions"]["mujoco"] and meta["versions"]["onnx"]
+    observations = {o["name"]: o["unit"] for o in meta["input"]["observations"]}
+    assert list(observations) == ["cart_pos", "pole_angle", "cart_vel", "pole_vel"]
+    assert observations["pole_angle"].startswith("rad from upright, wrapped to [-pi, pi)")
+    assert meta["input"]["normalizer_included"] and meta["input"]["shape"] == ["batch", 4]
+    assert meta["output"]["actions"] == [{"action": "cart_force", "actuator": "cart_force",
+                                          "command": "ctrl = 40 * action", "unit": "N along +x"}]
+    assert meta["output"]["range"] == [-1.0, 1.0]
+    assert meta["timing"] == {"control_dt": 0.02, "physics_dt": 0.01, "decimation": 2}
+    assert meta["check"]["max_abs_diff"] < 1e-5
+    model = onnx.load(str(exported / "policy.onnx"))
+    inside = json.loads({p.key: p.value for p in model.metadata_props}["lab"])
+    assert inside == {k: v for k, v in meta.items() if k != "check"}
+    extra = {"lab.json": ""}
+    torch.jit.load(str(exported / "policy.pt"), _extra_files=extra)
+    assert json.loads(extra["lab.json"])["file"] == "policy.pt"
 
 
 # Bad input: one line on stderr, exit code 2, no traceback, nothing written ---------------------
@@ -172,3 +201,23 @@ def test_bench_threads_sets_the_cpu_backends_physics_threads(tmp_path):
 def test_bench_rejects_bad_env_counts(tmp_path, counts):
     result = lab("bench", "--task", "cartpole", "--num-envs", counts, logs=tmp_path)
     assert result.exit_code == 2 and result.stderr.startswith("error: --num-envs")
+
+
+@pytest.mark.parametrize("umask", [0o022, 0o027])
+def test_files_a_user_reads_follow_the_user_s_umask(umask, tmp_path):
+    """Results are created as `open()` would create them, so that colleagues on a shared
+    machine can read them where the umask lets them, not 0600."""
+    logs = tmp_path / "logs"
+    script = (f"umask {umask:03o} && {sys.executable} -m labcli train --task cartpole "
+              f"--framework rsl_rl --num-envs 4 --max-iterations 1 "
+              f"--set agent.num_steps_per_env=8 --set agent.actor_hidden_dims=[8] "
+              f"--set agent.critic_hidden_dims=[8] && {sys.executable} -m labcli export onnx")
+    result = subprocess.run(["sh", "-c", script], capture_output=True, text=True,
+                            env={**os.environ, "LAB_LOGS_DIR": str(logs)}, cwd=tmp_path)
+    assert result.returncode == 0, result.stderr
+    (run,) = (logs / "rsl_rl" / "cartpole").iterdir()
+    wanted = {"file": 0o666 & ~umask, "dir": 0o777 & ~umask}
+    for path in [run, *run.rglob("*")]:
+        kind = "dir" if path.is_dir() else "file"
+        assert path.stat().st_mode & 0o777 == wanted[kind], (path.relative_to(logs),
+                                                              oct(path.stat().st_mode))

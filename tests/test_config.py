@@ -235,12 +235,12 @@ def test_a_framework_gives_defaults_for_the_tasks_it_knows_and_the_task_s_own_wi
         "other_task": {"env": {"num_envs": 7}, "agent": {}},  # another task's: never used
     })
     task = dataclasses.replace(registry.get_task("cartpole"), framework_defaults={
-        "sb3": {"env": {"decimation": 4, "reward_weights": {"upright": 3.0}},
+        "sb3": {"env": {"decimation": 4, "reward_weights": {"pole_angle": 3.0}},
                 "agent": {"n_steps": 16}}})
     env, agent = resolve_configs(task, fw, overrides=["agent.batch_size=64"])
     assert env.num_envs == 96 and agent.gamma == 0.97  # the framework's, where the task is silent
     assert env.decimation == 4 and agent.n_steps == 16  # the task's own win
-    assert env.reward_weights == {**DEFAULT_WEIGHTS, "alive": 2.0, "upright": 3.0}
+    assert env.reward_weights == {**DEFAULT_WEIGHTS, "alive": 2.0, "pole_angle": 3.0}
     assert agent.batch_size == 64  # and --set over both
     env, _ = resolve_configs(dataclasses.replace(task, framework_defaults={}), fw)
     assert env.num_envs == 96 and env.decimation == 3
@@ -249,9 +249,9 @@ def test_a_framework_gives_defaults_for_the_tasks_it_knows_and_the_task_s_own_wi
 def test_reward_weights_merge_key_by_key_across_layers(tmp_path):
     spec = dataclasses.replace(registry.get_task("cartpole"), framework_defaults={
         "sb3": {"env": {"reward_weights": {"cart_vel": -0.5}}, "agent": {}}})
-    file = write_yaml(tmp_path / "cfg.yaml", {"env": {"reward_weights": {"upright": 3.0}}})
+    file = write_yaml(tmp_path / "cfg.yaml", {"env": {"reward_weights": {"pole_angle": 3.0}}})
     env, _ = resolve(spec, config_file=file, overrides=["env.reward_weights.alive=2"])
-    assert env.reward_weights == {**DEFAULT_WEIGHTS, "cart_vel": -0.5, "upright": 3.0,
+    assert env.reward_weights == {**DEFAULT_WEIGHTS, "cart_vel": -0.5, "pole_angle": 3.0,
                                   "alive": 2.0}
     assert list(env.reward_weights) == list(DEFAULT_WEIGHTS)  # the terms keep their order
 

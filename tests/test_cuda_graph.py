@@ -20,13 +20,13 @@ def cpu_env(**cfg) -> LabVecEnv:
 
 def test_outputs_are_copied_and_shared_tensors_stay_shared():
     done, obs = torch.tensor([True, False]), torch.zeros(2, 3)
-    out = (obs, {"_final_obs": done, "episode": {"r": obs[:, 0]}, "_episode": done, "n": 2})
+    out = (obs, {"_final_obs": done, "lab_episode": {"r": obs[:, 0]}, "_lab_episode": done, "n": 2})
     copy = _fresh(out, {})
     assert copy[0] is not obs and torch.equal(copy[0], obs)
-    assert copy[1]["_final_obs"] is copy[1]["_episode"] is not done
+    assert copy[1]["_final_obs"] is copy[1]["_lab_episode"] is not done
     assert copy[1]["n"] == 2
     obs.fill_(1.0)
-    assert copy[0].eq(0).all() and copy[1]["episode"]["r"].eq(0).all()
+    assert copy[0].eq(0).all() and copy[1]["lab_episode"]["r"].eq(0).all()
 
 
 def test_cpu_envs_step_eagerly_and_the_flag_is_config():

@@ -29,7 +29,7 @@ DT = 0.01  # cartpole.xml's timestep
 STEP_DT = DT * 2  # at the default decimation
 CART, POLE = 0, 1  # qpos / qvel columns
 # Cartpole's reward terms and causes, as its config and task name them.
-TERMS = ["alive", "terminating", "upright", "cart_vel", "pole_vel"]
+TERMS = ["alive", "terminating", "pole_angle", "cart_vel", "pole_vel"]
 OUT_OF_BOUNDS = "cart_out_of_bounds"
 # Pole upright, everything at rest: with no push it stays exactly there, so the outcome of an
 # episode is known in advance.
@@ -103,10 +103,10 @@ def test_reset_and_step_return_batched_torch_tensors(make_env):
                                 (truncated, torch.bool, (NUM_ENVS,)),
                                 (info["final_obs"], torch.float32, (NUM_ENVS, OBS)),
                                 (info["_final_obs"], torch.bool, (NUM_ENVS,)),
-                                (info["_episode"], torch.bool, (NUM_ENVS,)),
-                                (info["episode"]["r"], torch.float32, (NUM_ENVS,)),
-                                (info["episode"]["l"], torch.long, (NUM_ENVS,)),
-                                (info["episode"]["success"], torch.bool, (NUM_ENVS,)),
+                                (info["_lab_episode"], torch.bool, (NUM_ENVS,)),
+                                (info["lab_episode"]["r"], torch.float32, (NUM_ENVS,)),
+                                (info["lab_episode"]["l"], torch.long, (NUM_ENVS,)),
+                                (info["lab_episode"]["success"], torch.bool, (NUM_ENVS,)),
                                 (info["terminations"], torch.bool, (NUM_ENVS, 2))):
         assert isinstance(value, torch.Tensor) and value.dtype == dtype and value.shape == shape
     assert torch.isfinite(obs).all() and torch.isfinite(reward).all()
@@ -143,16 +143,16 @@ def test_episode_info_has_the_returns_and_lengths_of_ended_episodes(make_env):
         _, reward, terminated, truncated, info = env.step(action)
         returns += reward
         done = terminated | truncated
-        assert torch.equal(info["_episode"], done)
+        assert torch.equal(info["_lab_episode"], done)
         if step in (4, 9):
             assert done.all()
-            torch.testing.assert_close(info["episode"]["r"], returns)
-            assert (info["episode"]["l"] == 5).all()
+            torch.testing.assert_close(info["lab_episode"]["r"], returns)
+            assert (info["lab_episode"]["l"] == 5).all()
             # The second episode's return starts from zero, not from the first one's.
             returns.zero_()
         else:
             assert not done.any()
-            assert (info["episode"]["l"] == step % 5 + 1).all()
+            assert (info["lab_episode"]["l"] == step % 5 + 1).all()
 
 
 # Episode statistics ----------------------------------------------------------------------------
@@ -186,7 +186,7 @@ def test_success_rate_is_judged_on_the_final_state(make_env, pole_angle, expecte
     env.reset()
     for _ in range(3):
         *_, info = env.step(zeros())
-    assert info["episode"]["success"].tolist() == [bool(expected)] * NUM_ENVS
+    assert info["lab_episode"]["success"].tolist() == [bool(expected)] * NUM_ENVS
     assert env.pop_stats()[metrics.SUCCESS_RATE] == expected
 
 
@@ -212,10 +212,10 @@ def test_leaving_the_rail_is_a_termination_not_a_time_out(make_env):
     assert info["terminations"][:, causes.index(OUT_OF_BOUNDS)].all()
     assert not info["terminations"][:, causes.index(UNSTABLE)].any()
     weights = CartpoleConfig().reward_weights
-    # alive + terminating + upright (pole upright, at rest: both velocity terms are ~0).
-    expected = weights["alive"] + weights["terminating"] + weights["upright"]
+    # alive + terminating (pole upright, at rest: the angle and velocity terms are ~0).
+    expected = weights["alive"] + weights["terminating"]
     torch.testing.assert_close(reward, torch.full((NUM_ENVS,), expected), atol=1e-3, rtol=0)
-    assert not info["episode"]["success"].any()  # a terminated episode never succeeds
+    assert not info["lab_episode"]["success"].any()  # a terminated episode never succeeds
     stats = env.pop_stats()
     assert stats[metrics.TERMINATION + OUT_OF_BOUNDS] == 1.0
     assert stats[metrics.MEAN_LENGTH] == 1
@@ -404,12 +404,12 @@ def test_only_ended_envs_are_reset(make_env):
     obs, _, terminated, _, info = env.step(zeros())
     twin_obs, *_ = twin.step(zeros())
     assert torch.equal(terminated, ended)
-    assert info["episode"]["l"][ended].tolist() == [4, 4]
+    assert info["lab_episode"]["l"][ended].tolist() == [4, 4]
     torch.testing.assert_close(obs[~ended], twin_obs[~ended], rtol=0, atol=0)
     assert not torch.allclose(obs[ended], twin_obs[ended])
     # Lengths: the untouched envs go on counting, the reset ones start again.
     _, _, _, _, info = env.step(zeros())
-    assert info["episode"]["l"].tolist() == [1 if e else 5 for e in ended.tolist()]
+    assert info["lab_episode"]["l"].tolist() == [1 if e else 5 for e in ended.tolist()]
 
 
 def test_task_and_sim_reset_touch_only_the_masked_envs(make_env):
@@ -464,7 +464,7 @@ def test_non_finite_actions_reset_the_env_and_count_as_unstable(make_env):
     assert torch.isfinite(reward).all() and (reward[bad] == 0).all()
     assert torch.equal(terminated, bad) and not truncated.any()
     assert torch.equal(info["terminations"][:, env.termination_names.index(UNSTABLE)], bad)
-    assert (info["episode"]["l"][bad] == 1).all()
+    assert (info["lab_episode"]["l"][bad] == 1).all()
     stats = env.pop_stats()
     assert stats[metrics.INSTABILITIES] == 3 and stats[metrics.TERMINATION + UNSTABLE] == 1.0
     # The reset envs go on normally.

@@ -48,8 +48,8 @@ def test_steps_like_a_lab_env():
         assert truncated.all() and not terminated.any()
         # Same-step autoreset: obs is the next episode's first, final_obs the true last one.
         assert not torch.allclose(info["final_obs"], obs)
-        assert info["episode"]["l"].tolist() == [3] * 4
-        assert info["episode"]["r"].tolist() == [3.0] * 4
+        assert info["lab_episode"]["l"].tolist() == [3] * 4
+        assert info["lab_episode"]["r"].tolist() == [3.0] * 4
         stats = env.pop_stats()
         assert stats[metrics.EPISODES] == 4 and stats[metrics.MEAN_RETURN] == 3.0
         assert stats[metrics.SUCCESS_RATE] == 0.0  # below InvertedPendulum's threshold of 950
@@ -90,7 +90,7 @@ def test_trains_plays_and_exports_with_every_framework(tmp_path, framework):
 
     result = export(Format.onnx, run_dir=outcome.run.dir)
     meta = json.loads(result.metadata.read_text())
-    assert meta["output"]["action_low"] == [-3.0] and meta["output"]["action_high"] == [3.0]
+    assert meta["output"]["actions"][0]["command"] == "-3 + (action + 1) / 2 * 6"
     obs = np.random.default_rng(0).normal(size=(5, 4)).astype(np.float32)
     actions = ort.InferenceSession(str(result.path)).run(None, {"obs": obs})[0]
     assert actions.shape == (5, 1) and np.all(np.abs(actions) <= 1.0)

@@ -433,7 +433,7 @@ KILLED_MID_EXPORT = textwrap.dedent("""
     from pathlib import Path
     from labcli.runs import export
 
-    def slow(policy, example, path):
+    def slow(policy, example, path, *metadata):
         Path(path).write_bytes(b"half an export")
         print("writing", flush=True)
         time.sleep(60)

@@ -147,10 +147,10 @@ def test_export_replaces_a_planted_link_and_does_not_write_its_target(tmp_path):
     victim.write_text("precious")
     (run_dir / "exported").mkdir()
     (run_dir / "exported" / "policy.onnx").symlink_to(victim)
-    (run_dir / "exported" / "policy.json").symlink_to(victim)
+    (run_dir / "exported" / "policy.onnx.json").symlink_to(victim)
     assert lab("export", "onnx", "--run", str(run_dir), logs=logs).exit_code == 0
     assert victim.read_text() == "precious"
-    for name in ("policy.onnx", "policy.json"):
+    for name in ("policy.onnx", "policy.onnx.json"):
         assert not (run_dir / "exported" / name).is_symlink()
 
 

@@ -159,8 +159,8 @@ class GymVecEnv(gym.vector.VectorEnv):
         self._accumulate(done, episode, terminated)
         self.episode_length.masked_fill_(done_t, 0)
         self.episode_return.masked_fill_(done_t, 0.0)
-        info = {"final_obs": self._obs(final), "_final_obs": done_t, "episode": episode,
-                "_episode": done_t, "terminations": terminated_t[:, None]}
+        info = {"final_obs": self._obs(final), "_final_obs": done_t, "lab_episode": episode,
+                "_lab_episode": done_t, "terminations": terminated_t[:, None]}
         self._last_obs = self._obs(obs)
         return self._last_obs, reward_t, terminated_t, truncated_t, info
 
@@ -226,10 +226,17 @@ class GymVecEnv(gym.vector.VectorEnv):
         episodes (the random generators are still restored)."""
         return None
 
-    def action_scaling(self) -> dict[str, Any]:
-        """A policy action a in [-1, 1] is the control low + (a + 1) / 2 * (high - low)."""
+    def describe(self) -> dict[str, Any]:
+        """As LabVecEnv.describe: a policy action a in [-1, 1] is the gymnasium env's action
+        low + (a + 1) / 2 * (high - low); observations are the env's, flattened."""
         space = self._vec.single_action_space
-        return {"action_low": space.low.tolist(), "action_high": space.high.tolist()}
+        actions = [{"action": name, "actuator": f"{self.task_spec.gym_id} action[{i}]",
+                    "command": f"{lo:g} + (action + 1) / 2 * {hi - lo:g}", "unit": ""}
+                   for i, (name, lo, hi) in enumerate(zip(self.action_names,
+                                                          space.low.tolist(),
+                                                          space.high.tolist(), strict=True))]
+        return {"observations": [{"name": name, "unit": ""} for name in self.observation_names],
+                "actions": actions, "action_range": [-1.0, 1.0], "control_dt": self.step_dt}
 
     def _tensor(self, array: np.ndarray, dtype: torch.dtype = torch.float32) -> torch.Tensor:
         return torch.as_tensor(array, dtype=dtype, device=self.device)

@@ -11,9 +11,14 @@ from labcli.errors import LabError
 
 
 def make_env(spec: TaskSpec | GymTaskSpec, cfg: Any, *, backend: str | None = None,
-             device: str = "cpu", seed: int = 0) -> Any:
-    """The batched env of `spec` under the validated config `cfg` (`spec.config_class`)."""
+             device: str = "cpu", seed: int = 0, autoreset_mode: Any = "same_step") -> Any:
+    """The batched env of `spec` under the validated config `cfg` (`spec.config_class`);
+    `autoreset_mode` "same_step" or "next_step" (lab's own tasks)."""
     if isinstance(spec, GymTaskSpec):
+        if str(getattr(autoreset_mode, "value", autoreset_mode)).replace("_", "").lower() \
+                != "samestep":
+            raise LabError(f"gymnasium tasks reset in the same step, not as {autoreset_mode!r}",
+                           "leave autoreset_mode out for gym: tasks")
         # gymnasium's MuJoCo envs step MuJoCo's C engine: "cpu" is what they are, "warp" not.
         if backend not in (None, "cpu", BACKEND):
             raise LabError(f"gymnasium tasks step in gymnasium on the CPU, not on the "
@@ -23,4 +28,5 @@ def make_env(spec: TaskSpec | GymTaskSpec, cfg: Any, *, backend: str | None = No
         return GymVecEnv(spec, cfg, device=device, seed=seed)
     from labcli.envs.env import LabVecEnv
 
-    return LabVecEnv(spec, cfg, backend=backend, device=device, seed=seed)
+    return LabVecEnv(spec, cfg, backend=backend, device=device, seed=seed,
+                     autoreset_mode=autoreset_mode)

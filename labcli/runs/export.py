@@ -1,25 +1,33 @@
-"""`lab export onnx|jit`: write the Policy (normalizer folded in) and check it against torch."""
+"""`lab export onnx|jit`: write the Policy (normalizer folded in), check it against torch, and
+describe it beside it (`policy.onnx.json`, `policy.pt.json`) and inside it (the ONNX model's
+metadata, the TorchScript archive's extra file): what a deployment must feed it and do with its
+output, and where it came from."""
 
 from __future__ import annotations
 
 import contextlib
 import enum
 import io
+import json
 import logging
 import warnings
 from dataclasses import dataclass
+from datetime import datetime
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
 
-from labcli import files
+from labcli import __version__, files
 from labcli.errors import LabError
+from labcli.plugins import registry
 from labcli.runs import rundir
 from labcli.runs.play import LoadedPolicy, load
 
 TOLERANCE = 1e-5
 CHECK_STEPS = 64  # env steps of real observations to compare on, besides random ones
+METADATA_KEY = "lab"  # the ONNX metadata_props key, and the TorchScript extra file "lab.json"
 
 
 class Format(str, enum.Enum):
@@ -51,7 +59,8 @@ def _check_observations(loaded: LoadedPolicy) -> torch.Tensor:
     return torch.cat([real_t, random]).float()
 
 
-def _export_onnx(policy: torch.nn.Module, example: torch.Tensor, path: Path) -> None:
+def _export_onnx(policy: torch.nn.Module, example: torch.Tensor, path: Path,
+                 metadata: dict[str, Any]) -> None:
     batch = torch.export.Dim("batch")
     # The exporter narrates its passes, warns about torch internals and logs "torchvision is not
     # installed": nothing a user can act on.
@@ -66,14 +75,21 @@ def _export_onnx(policy: torch.nn.Module, example: torch.Tensor, path: Path) -> 
                               external_data=False, verbose=False)
     finally:
         registration.setLevel(level)
+    import onnx
+
+    model = onnx.load(str(path))
+    onnx.helper.set_model_props(model, {METADATA_KEY: json.dumps(metadata)})
+    onnx.save(model, str(path))
 
 
-def _export_jit(policy: torch.nn.Module, obs: torch.Tensor, path: Path) -> np.ndarray:
+def _export_jit(policy: torch.nn.Module, obs: torch.Tensor, path: Path,
+                metadata: dict[str, Any]) -> np.ndarray:
     """TorchScript is deprecated in favour of torch.export, but it is what C++ and ROS
     deployments load today; the warnings say nothing a user can act on."""
     with warnings.catch_warnings(), torch.no_grad():
         warnings.simplefilter("ignore", DeprecationWarning)
-        torch.jit.save(torch.jit.trace(policy, obs[:2]), str(path))
+        torch.jit.save(torch.jit.trace(policy, obs[:2]), str(path),
+                       _extra_files={f"{METADATA_KEY}.json": json.dumps(metadata)})
         return torch.jit.load(str(path))(obs).numpy()
 
 
@@ -98,42 +114,54 @@ def export(fmt: Format | str, *, run_dir: Path | None = None, checkpoint: Path |
         run_dir = loaded.run.dir
         out_dir = files.real_dir(run_dir / rundir.EXPORTED, below=run_dir)
         path = out_dir / ("policy.onnx" if fmt is Format.onnx else "policy.pt")
+        metadata = describe(loaded, fmt, path)
         # Written and checked under a temporary name: the previous export survives a failed
         # check, a kill or a full disk, and a link at `path` is replaced, not followed.
         with files.staged(path, below=run_dir) as tmp:
             if fmt is Format.onnx:
-                _export_onnx(policy, obs, tmp)
+                _export_onnx(policy, obs, tmp, metadata)
                 got = _run_onnx(tmp, obs)
             else:
-                got = _export_jit(policy, obs, tmp)
+                got = _export_jit(policy, obs, tmp, metadata)
             diff = float(np.max(np.abs(got - expected)))
             if not diff < TOLERANCE:
                 raise LabError(f"exported {path.name} differs from the torch policy by "
                                f"{diff:.2e} (tolerance {TOLERANCE:.0e}); nothing was written",
                                "please report this as a bug")
-        metadata = out_dir / "policy.json"
-        rundir.write_json(run_dir, f"{rundir.EXPORTED}/{metadata.name}",
-                          _metadata(loaded, fmt, path, diff, len(obs)))
-        return ExportResult(path, metadata, diff, len(obs))
+        metadata["check"] = {"max_abs_diff": diff, "tolerance": TOLERANCE,
+                             "observations": len(obs)}
+        beside = out_dir / f"{path.name}.json"
+        rundir.write_json(run_dir, f"{rundir.EXPORTED}/{beside.name}", metadata)
+        return ExportResult(path, beside, diff, len(obs))
     finally:
         loaded.env.close()
 
 
-def _metadata(loaded: LoadedPolicy, fmt: Format, path: Path, diff: float,
-              checked: int) -> dict:
+def describe(loaded: LoadedPolicy, fmt: Format, path: Path) -> dict[str, Any]:
+    """The exported file's metadata: its input and output with units, conventions and the rule
+    from action to actuator command (the task's own words), the timing, and its provenance."""
     env = loaded.env
+    io_ = env.describe()
+    library = loaded.framework.spec.library
+    dists = ("mujoco", "torch", library, *(("onnx",) if fmt is Format.onnx else ()))
     return {
-        "format": fmt.value,
         "file": path.name,
+        "format": fmt.value,
         "task": loaded.spec.name,
         "framework": loaded.framework.name,
+        "run": loaded.run.dir.name,
         "checkpoint": loaded.checkpoint.path.name,
         "iteration": loaded.checkpoint.iteration,
-        "input": {"name": "obs", "size": len(env.observation_names),
-                  "names": env.observation_names, "dtype": "float32"},
-        "output": {"name": "actions", "size": len(env.action_names), "names": env.action_names,
-                   "low": -1.0, "high": 1.0, **env.action_scaling()},
-        "normalizer_included": not isinstance(loaded.policy.normalizer, torch.nn.Identity),
-        "control_dt": env.step_dt,
-        "check": {"max_abs_diff": diff, "tolerance": TOLERANCE, "observations": checked},
+        "exported": datetime.now().isoformat(timespec="seconds"),
+        "versions": {"lab": __version__,
+                     **{d: v for d in dists if d and (v := registry.installed(d))}},
+        "input": {"name": "obs", "dtype": "float32", "shape": ["batch", len(io_["observations"])],
+                  "observations": io_["observations"],
+                  "normalizer_included": not isinstance(loaded.policy.normalizer,
+                                                        torch.nn.Identity)},
+        "output": {"name": "actions", "dtype": "float32", "shape": ["batch", len(io_["actions"])],
+                   "range": io_["action_range"], "actions": io_["actions"],
+                   "deterministic": True},
+        "timing": {key: io_[key] for key in ("control_dt", "physics_dt", "decimation")
+                   if key in io_},
     }

@@ -38,7 +38,7 @@ class Sb3VecEnv(VecEnv):
         ended = np.flatnonzero(done)
         if ended.size:
             final = info["final_obs"].cpu().numpy()
-            ep = info["episode"]
+            ep = info["lab_episode"]
             returns, lengths = ep["r"].cpu().numpy(), ep["l"].cpu().numpy()
             success, trunc = ep["success"].cpu().numpy(), truncated.cpu().numpy()
             for i in ended:
