@@ -103,7 +103,7 @@ def test_example_task_runs_in_a_lab_env(example, tmp_path, monkeypatch):
             action = (4.0 * obs[:, 4:] - 1.5 * obs[:, 2:4]).clamp(-1, 1)
             obs, _, terminated, truncated, info = env.step(action)
             assert not terminated.any()
-        assert truncated.all() and info["episode"]["success"].all()
+        assert truncated.all() and info["lab_episode"]["success"].all()
         stats = env.pop_stats()
         assert stats[metrics.SUCCESS_RATE] == 1.0
         assert {f"{metrics.REWARD_TERM}{t}" for t in ("near", "at_target", "effort", "leaving")} \
@@ -237,7 +237,7 @@ def test_a_task_from_a_failed_plugin_is_a_lab_error_naming_the_failure(register_
     with pytest.raises(LabError) as err:
         registry.get_task("robot_arm")
     assert err.value.message == "unknown task 'robot_arm'"
-    assert "known tasks: cartpole" in err.value.hint
+    assert "known tasks: ant, cartpole, humanoid" in err.value.hint
     assert ("plugins that failed to load, which may provide it: 'robot' from robot "
             f"{NOT_INSTALLED}: RuntimeError: robot.xml not found") in err.value.hint
     result = CliRunner().invoke(cli.app, ["train", "--task", "robot_arm", "--framework", "sb3"])

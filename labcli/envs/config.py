@@ -17,6 +17,8 @@ class TaskConfig(BaseModel):
     # The keys a resume may change: how many envs step (they start new episodes) and how; not
     # the task itself (rewards, episodes, physics), which the checkpoint was trained on.
     resumable: ClassVar[frozenset[str]] = frozenset({"num_envs", "threads", "cuda_graph"})
+    # What `lab play` sets unless the user sets it (e.g. observation noise off).
+    play_overrides: ClassVar[dict[str, Any]] = {}
 
     # The upper bounds are far beyond any use; past them a typo would exhaust memory or overflow
     # the step count instead of failing at once.
@@ -28,8 +30,16 @@ class TaskConfig(BaseModel):
     reward_weights: dict[str, float] = Field(default_factory=dict)
     threads: int | None = Field(None, gt=0, le=4096, description="cpu backend: threads that "
                                 "step the physics (None: the cores this process may use)")
+    nconmax: int | None = Field(None, gt=0, le=2**16, description="warp backend: contacts "
+                                "per env its buffers hold (None: MuJoCo Warp's estimate)")
+    njmax: int | None = Field(None, gt=0, le=2**16, description="warp backend: constraint rows "
+                              "per env (None: MuJoCo Warp's estimate)")
     cuda_graph: bool = Field(True, description="on a GPU, replay each env step as one CUDA graph "
                              "(false: step eagerly, for debugging a task)")
+
+    def weights(self) -> dict[str, float]:
+        """Each reward term's weight, by name."""
+        return dict(self.reward_weights)
 
 
 class GymConfig(BaseModel):
@@ -37,6 +47,7 @@ class GymConfig(BaseModel):
 
     model_config = ConfigDict(extra="forbid", validate_assignment=True)
     resumable: ClassVar[frozenset[str]] = frozenset({"num_envs", "vectorization"})
+    play_overrides: ClassVar[dict[str, Any]] = {}
 
     num_envs: int = Field(16, gt=0, description="parallel environments (rl_zoo3's 16)")
     vectorization: Literal["sync", "async"] = Field(

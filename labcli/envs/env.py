@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from typing import Any
 
 import gymnasium as gym
@@ -23,21 +24,29 @@ from labcli.errors import LabError, first_line
 UNSTABLE = "unstable"
 
 
+# The info key of lab's episode figures: gymnasium's RecordEpisodeStatistics owns "episode".
+EPISODE = "lab_episode"
+AUTORESET_MODES = (AutoresetMode.SAME_STEP, AutoresetMode.NEXT_STEP)
+
+
 class LabVecEnv(gym.vector.VectorEnv):
-    """Steps all envs at once; ended envs reset in the same step (`info["final_obs"]` keeps
-    their last observation). Episode statistics accumulate on the device and are read once per
-    training iteration with `pop_stats()`, so stepping never waits on the host."""
+    """Steps all envs at once. By default ended envs reset in the same step
+    (`info["final_obs"]` keeps their last observation); with `autoreset_mode=NEXT_STEP` they
+    reset on the next step, whose action they ignore, as gymnasium's own vector envs do.
+    Episode statistics accumulate on the device and are read once per training iteration with
+    `pop_stats()`, so stepping never waits on the host."""
 
     metadata = {"autoreset_mode": AutoresetMode.SAME_STEP}
     render_mode = "rgb_array"  # env 0, see `render`
 
     def __init__(self, spec: TaskSpec, cfg: TaskConfig, *, backend: str | None = None,
-                 device: str = "cpu", seed: int = 0):
+                 device: str = "cpu", seed: int = 0,
+                 autoreset_mode: AutoresetMode | str = AutoresetMode.SAME_STEP):
+        self.autoreset_mode = _autoreset_mode(autoreset_mode)
+        self.metadata = {**self.metadata, "autoreset_mode": self.autoreset_mode}
         self.task_spec = spec
         self.cfg = cfg
-        model = mujoco.MjModel.from_xml_path(str(spec.model))
-        if cfg.sim_dt is not None:
-            model.opt.timestep = cfg.sim_dt
+        model = spec.task_class.build_model(cfg, spec.model)
         self.step_dt = model.opt.timestep * cfg.decimation
         steps = cfg.episode_length_s / self.step_dt
         if not steps < 2**31:
@@ -46,7 +55,8 @@ class LabVecEnv(gym.vector.VectorEnv):
         # Rounded first: 0.14 / 0.02 is 7.000000000000001, which must be 7 steps, not 8.
         self.max_episode_length = math.ceil(round(steps, 9))
         self.backend = backend or default_backend(device)
-        self.sim = make_sim(self.backend, model, cfg.num_envs, device, cfg.threads)
+        self.sim = make_sim(self.backend, model, cfg.num_envs, device, cfg.threads, cfg.nconmax,
+                            cfg.njmax)
         self.task = spec.task_class(cfg, self.sim)
         self.num_envs = cfg.num_envs
         self.device = self.sim.device
@@ -59,18 +69,21 @@ class LabVecEnv(gym.vector.VectorEnv):
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
         self.action_space = batch_space(self.single_action_space, self.num_envs)
 
-        self.reward_names = list(cfg.reward_weights)
+        reward_weights = cfg.weights()
+        self.reward_names = list(reward_weights)
         term_names = set(self.task.reward_terms())
         if term_names != set(self.reward_names):
             raise LabError(
                 f"task '{spec.name}' computes reward terms {sorted(term_names)} but its config "
                 f"weighs {sorted(self.reward_names)}",
                 "give reward_weights exactly one entry per reward term")
-        weights = torch.tensor([cfg.reward_weights[k] for k in self.reward_names],
+        weights = torch.tensor([reward_weights[k] for k in self.reward_names],
                                device=self.device)
         self.termination_names = [*self.task.terminations(), UNSTABLE]
         self.generator = torch.Generator(self.device)
         self.generator.manual_seed(seed)
+        self.task.generator = self.generator
+        self._np_random, self._np_random_seed = gym.utils.seeding.np_random(seed)
 
         n, dev = self.num_envs, self.device
         k, t = len(self.reward_names), len(self.termination_names)
@@ -90,6 +103,8 @@ class LabVecEnv(gym.vector.VectorEnv):
         self._ended_figures = (e[0], e[1:2 + k], e[2 + k], e[3 + k], e[4 + k:-1], e[-1])
         self._stats = torch.zeros(len(e), dtype=torch.float64, device=dev)
         self._all = torch.ones(n, dtype=torch.bool, device=dev)
+        # NEXT_STEP: the envs that ended on the last step, to be reset on this one.
+        self._pending = torch.zeros(n, dtype=torch.bool, device=dev)
         self._renderer: SceneRenderer | None = None
         self._resume_state: dict[str, torch.Tensor] | None = None
         # On a GPU the step is host-bound when eager: it replays as one CUDA graph instead.
@@ -98,9 +113,12 @@ class LabVecEnv(gym.vector.VectorEnv):
                          if self.device.type == "cuda" and cfg.cuda_graph else None)
 
     # gymnasium API ---------------------------------------------------------------------------
-    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
+    def reset(self, *, seed: int | Sequence[int] | None = None,
+              options: dict[str, Any] | None = None):
         if seed is not None:
+            seed = self._one_seed(seed)
             self.generator.manual_seed(seed)
+            self._np_random, self._np_random_seed = gym.utils.seeding.np_random(seed)
         mask = (options or {}).get("reset_mask")
         if mask is None and self._resume_state is not None:
             self.set_state(self._resume_state)
@@ -113,6 +131,18 @@ class LabVecEnv(gym.vector.VectorEnv):
             self._reset_envs(torch.as_tensor(mask, dtype=torch.bool, device=self.device))
         return self.observations(), {}
 
+    def _one_seed(self, seed: int | Sequence[int]) -> int:
+        """All envs share one generator: a list of seeds, one per env (as gymnasium's
+        SyncVectorEnv takes them), is folded into one seed that depends on every one."""
+        if isinstance(seed, (int, np.integer)):
+            return int(seed)
+        seeds = list(seed)
+        if len(seeds) != self.num_envs or not all(
+                isinstance(s, (int, np.integer)) and s >= 0 for s in seeds):
+            raise LabError(f"reset(seed=...) got {seeds!r}",
+                           f"pass one int, or a list of {self.num_envs} non-negative ints")
+        return int(np.random.SeedSequence([int(s) for s in seeds]).generate_state(1)[0])
+
     def step(self, actions: torch.Tensor):
         actions = torch.as_tensor(actions, device=self.device, dtype=torch.float32)
         if actions.shape != self.action_space.shape:
@@ -123,7 +153,8 @@ class LabVecEnv(gym.vector.VectorEnv):
             return self._graphed(actions)
         return self._step(actions)
 
-    def close(self, **kwargs: Any) -> None:
+    def close_extras(self, **kwargs: Any) -> None:
+        # VectorEnv.close calls this once, then sets `closed`.
         if self._graphed is not None:
             self._graphed.close()
         if self._renderer is not None:
@@ -148,20 +179,31 @@ class LabVecEnv(gym.vector.VectorEnv):
         terminated = torch.stack([*causes.values(), unstable])
         reward = self._reward(unstable)
 
+        next_step = self.autoreset_mode is AutoresetMode.NEXT_STEP
+        if next_step:
+            # The envs that ended on the last step are reset now: their action, physics step and
+            # figures of this step do not count.
+            live = self._pending.logical_not()
+            terminated.logical_and_(live)
+            bad_action.logical_and_(live)
+            reward.masked_fill_(self._pending, 0.0)
         terminated_any = terminated.any(dim=0)
         done = terminated_any | (self.episode_length >= self.max_episode_length)
+        if next_step:
+            done.logical_and_(live)
         truncated = done ^ terminated_any  # timed out and not terminated
-        final_obs = self.observations()
         success = self.task.success(truncated) & truncated
         episode = {"r": self.episode_return.clone(), "l": self.episode_length.clone(),
                    "success": success}
         self._accumulate(done, success, terminated, bad_action)
-
-        self._reset_envs(done)
-        obs = self.observations()
-        info = {"final_obs": final_obs, "_final_obs": done, "episode": episode, "_episode": done,
-                "terminations": terminated.t()}
-        return obs, reward, terminated_any, truncated, info
+        info = {EPISODE: episode, f"_{EPISODE}": done, "terminations": terminated.t()}
+        if next_step:
+            self._reset_envs(self._pending)
+            self._pending.copy_(done)
+        else:
+            info["final_obs"], info["_final_obs"] = self.observations(), done
+            self._reset_envs(done)
+        return self.observations(), reward, terminated_any, truncated, info
 
     # looking at env 0 ------------------------------------------------------------------------
     def render(self) -> np.ndarray:
@@ -178,9 +220,19 @@ class LabVecEnv(gym.vector.VectorEnv):
             self._renderer = SceneRenderer(self.sim.model)
         return self._renderer
 
-    def action_scaling(self) -> dict[str, Any]:
-        """How a policy action in [-1, 1] becomes a control, for exported metadata."""
-        return {"action_scale": self.cfg.action_scale}
+    def describe(self) -> dict[str, Any]:
+        """What a deployment must know of the policy's inputs and outputs: each observation's
+        unit and convention, each action's rule to its command, and the timing."""
+        units = self.task.observation_units
+        return {
+            "observations": [{"name": name, "unit": units.get(name, "")}
+                             for name in self.observation_names],
+            "actions": self.task.action_commands(),
+            "action_range": [-1.0, 1.0],
+            "control_dt": self.step_dt,
+            "physics_dt": self.step_dt / self.cfg.decimation,
+            "decimation": self.cfg.decimation,
+        }
 
     # resume ----------------------------------------------------------------------------------
     def get_state(self) -> dict[str, torch.Tensor]:
@@ -223,6 +275,22 @@ class LabVecEnv(gym.vector.VectorEnv):
         self.generator.set_state(state["generator"])
         self.task.update()
 
+    def __reduce__(self):
+        # MuJoCo's rollout and data objects do not pickle: a pickled or deep-copied env is built
+        # anew from its spec and config, then put in this one's exact state.
+        return (_rebuilt, (self.task_spec, self.cfg, self.backend, str(self.device),
+                           self.autoreset_mode),
+                {**self.get_state(), "pending": self._pending.clone(),
+                 "stats": self._stats.clone(), "np_random": self._np_random.bit_generator.state,
+                 "np_random_seed": self._np_random_seed})
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.set_state(state)
+        self._pending.copy_(state["pending"])
+        self._stats.copy_(state["stats"])
+        self._np_random.bit_generator.state = state["np_random"]
+        self._np_random_seed = state["np_random_seed"]
+
     def resume_from(self, state: dict[str, torch.Tensor]) -> None:
         """Make the next full `reset()` continue the saved episodes instead of starting new ones:
         every library resets its env once before training, and a resumed run must go on from
@@ -246,9 +314,10 @@ class LabVecEnv(gym.vector.VectorEnv):
         when none ended. One host sync: call it once per training iteration, not per step."""
         values = self._stats.tolist()
         self._stats.zero_()
+        overflows = {metrics.OVERFLOW + name: n for name, n in self.sim.pop_overflows().items()}
         count = values[0]
         if count == 0:
-            return {}
+            return overflows
         k = len(self.reward_names)
         stats = {
             metrics.EPISODES: count,
@@ -263,7 +332,7 @@ class LabVecEnv(gym.vector.VectorEnv):
             stats[metrics.TERMINATION + name] = total / count
         stats[metrics.INSTABILITIES] = terminations[-1]
         stats[metrics.NONFINITE_ACTIONS] = values[-1]
-        return stats
+        return {**stats, **overflows}
 
     # internals -------------------------------------------------------------------------------
     def _reset_envs(self, mask: torch.Tensor) -> None:
@@ -272,6 +341,8 @@ class LabVecEnv(gym.vector.VectorEnv):
         self.task.update()
         self.episode_length.masked_fill_(mask, 0)
         self._episode_sums.masked_fill_(mask, 0.0)
+        # Last: `mask` may be `_pending` itself.
+        self._pending.logical_and_(mask.logical_not())
 
     def _reward(self, unstable: torch.Tensor) -> torch.Tensor:
         """The weighted terms' sum; each weighted term also adds to its episode's total."""
@@ -290,3 +361,20 @@ class LabVecEnv(gym.vector.VectorEnv):
     def observations(self) -> torch.Tensor:
         """The current observations: what the last step or reset returned."""
         return self.task.observations().to(torch.float32).nan_to_num(0.0, 0.0, 0.0)
+
+
+def _rebuilt(spec: TaskSpec, cfg: TaskConfig, backend: str, device: str,
+             autoreset_mode: AutoresetMode) -> LabVecEnv:
+    return LabVecEnv(spec, cfg, backend=backend, device=device, autoreset_mode=autoreset_mode)
+
+
+def _autoreset_mode(mode: AutoresetMode | str) -> AutoresetMode:
+    """An AutoresetMode, or its name in any spelling ("NextStep", "next_step")."""
+    if isinstance(mode, AutoresetMode) and mode in AUTORESET_MODES:
+        return mode
+    key = str(getattr(mode, "value", mode)).replace("_", "").lower()
+    for known in AUTORESET_MODES:
+        if known.value.lower() == key:
+            return known
+    raise LabError(f"autoreset_mode {mode!r} is not one lab's env has",
+                   "use 'same_step' (the default) or 'next_step'")

@@ -6,8 +6,11 @@ on every backend. Plugins register a `TaskSpec` (labcli/envs/spec.py) naming it.
 
 from __future__ import annotations
 
-from typing import ClassVar
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any, ClassVar
 
+import mujoco
 import torch
 
 from labcli.envs.config import TaskConfig
@@ -19,14 +22,45 @@ class Task:
 
     observation_names: ClassVar[list[str]]
     action_names: ClassVar[list[str]]
+    # What a deployment must know of each observation, by name: its unit and convention, e.g.
+    # "rad; 0 upright, counter-clockwise positive, wrapped to [-pi, pi)". Exported with the
+    # policy (exported/policy.onnx.json).
+    observation_units: ClassVar[Mapping[str, str]] = {}
+    # The unit of each action's command, by action name (e.g. {"cart_force": "N"}).
+    action_units: ClassVar[Mapping[str, str]] = {}
+
+    # The env's random generator, set by the env before the first reset: draw from it, not
+    # from torch's global one, so that seeded runs repeat (and a CUDA graph replays the draws).
+    generator: torch.Generator
 
     def __init__(self, cfg: TaskConfig, sim: Sim):
         self.cfg = cfg
         self.sim = sim
 
+    @classmethod
+    def build_model(cls, cfg: TaskConfig, path: Path) -> mujoco.MjModel:
+        """The MjModel this task steps, from the spec's MJCF: a task may edit it first (add the
+        sensors its terms read, through `mujoco.MjSpec`). `cfg.sim_dt`, where set, is the
+        physics step."""
+        model = mujoco.MjModel.from_xml_path(str(path))
+        if cfg.sim_dt is not None:
+            model.opt.timestep = cfg.sim_dt
+        return model
+
     def apply_actions(self, actions: torch.Tensor) -> None:
         """Turn clipped actions in [-1, 1] into controls; the default scales them into ctrl."""
         torch.mul(actions, self.cfg.action_scale, out=self.sim.ctrl)
+
+    def action_commands(self) -> list[dict[str, Any]]:
+        """How each action in [-1, 1] becomes a command to the robot, for exported metadata:
+        per action, the actuator it drives, the rule and the command's unit. This describes the
+        default `apply_actions`; a task that overrides it overrides this too."""
+        model = self.sim.model
+        return [{"action": action,
+                 "actuator": mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_ACTUATOR, i) or str(i),
+                 "command": f"ctrl = {self.cfg.action_scale:g} * action",
+                 "unit": self.action_units.get(action, "")}
+                for i, action in enumerate(self.action_names)]
 
     def update(self) -> None:
         """Called by the env each time the sim's state changed (after the physics steps, a reset

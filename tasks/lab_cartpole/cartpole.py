@@ -16,6 +16,14 @@ class Cartpole(Task):
     cfg: CartpoleConfig
     observation_names = ["cart_pos", "pole_angle", "cart_vel", "pole_vel"]
     action_names = ["cart_force"]
+    observation_units = {
+        "cart_pos": "m along the rail (+x), 0 at its centre",
+        "pole_angle": "rad from upright, wrapped to [-pi, pi); positive tips the pole's top "
+                      "toward +x",
+        "cart_vel": "m/s along +x",
+        "pole_vel": "rad/s, positive as pole_angle grows",
+    }
+    action_units = {"cart_force": "N along +x"}
 
     def __init__(self, cfg: CartpoleConfig, sim: Sim):
         super().__init__(cfg, sim)
@@ -56,8 +64,7 @@ class Cartpole(Task):
         return {
             "alive": self._ones,
             "terminating": self.out_of_bounds.to(angle.dtype),
-            # In [0, 1], so a step is never worth less than ending the episode by leaving the rail.
-            "upright": angle.cos().add_(1.0).mul_(0.5),
+            "pole_angle": angle.square(),  # radians from upright, squared
             "cart_vel": self._cart_vel.abs(),
             "pole_vel": self._pole_vel.abs(),
         }

@@ -29,6 +29,11 @@ class Reach(Task):
     cfg: ReachConfig
     observation_names = ["x", "y", "vx", "vy", "to_target_x", "to_target_y"]
     action_names = ["force_x", "force_y"]
+    # What a deployment must feed and command (exported beside the policy).
+    observation_units = {"x": "m", "y": "m", "vx": "m/s", "vy": "m/s",
+                         "to_target_x": "m, target minus puck",
+                         "to_target_y": "m, target minus puck"}
+    action_units = {"force_x": "N", "force_y": "N"}
 
     def __init__(self, cfg: ReachConfig, sim: Sim):
         super().__init__(cfg, sim)
