@@ -137,7 +137,6 @@ def test_sanity_agent_prints_returns_and_termination_causes(tmp_path):
     (["play", "--agent", "zero"], ["--agent zero plays a task", "--task"]),
     (["play", "--agent", "zero", "--task", "cartpole", "--set", "agent.n_steps=3"],
      ["no agent settings"]),
-    (["play", "--set", "env.num_envs=3"], ["--set applies to --agent only"]),
     (["train", "--task", "cartpole", "--framework", "sb3", "--video", "--video-length", "1"],
      ["--video-length"]),
     (["train", "--task", "gym:NoSuchEnv-v0", "--framework", "sb3"],

@@ -55,8 +55,6 @@ def play(
     if agent is not None and (task is None or run or checkpoint or framework):
         raise LabError(f"--agent {agent} plays a task with no checkpoint",
                        "pass --task T, and no --run, --checkpoint or --framework")
-    if agent is None and set_:
-        raise LabError("--set applies to --agent only", "a run plays with its own params")
     from labcli.runs import play as plays
     from labcli.runs.video import VideoSettings
 
@@ -68,7 +66,7 @@ def play(
         return
     loaded, eps = plays.play(episodes=episodes, seed=seed, run_dir=run, checkpoint=checkpoint,
                              task=task, framework=framework, num_envs=num_envs,
-                             logs_dir=logs_dir, show=show)
+                             logs_dir=logs_dir, show=show, overrides=set_ or [])
     _print_episodes(eps, f"{loaded.run.dir} · {loaded.checkpoint.path.name}",
                     bool(loaded.spec.success))
 

@@ -7,6 +7,8 @@ SUCCESS_RATE = "Metrics/success_rate"
 REWARD_TERM = "Episode_Reward/"
 TERMINATION = "Episode_Termination/"
 INSTABILITIES = "sim/instabilities"
+# + a MuJoCo Warp buffer's name (NEFC, NARROWPHASE...): env steps that overflowed it.
+OVERFLOW = "sim/overflow/"
 STEPS_PER_S = "Perf/steps_per_s"
 TOTAL_STEPS = "Perf/total_steps"
 NONFINITE_ACTIONS = "sim/nonfinite_actions"

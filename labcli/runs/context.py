@@ -80,6 +80,7 @@ class RunContext(TrainContext):
     # The env and random generators at the end of the last iteration, saved with its checkpoint.
     _boundary: dict[str, Any] | None = None
     _told_mujoco_warnings: bool = False
+    _told_overflows: bool = False
     _networks: list[nn.Module] = field(default_factory=list)
     _actor: Actor | None = None
     # The largest action difference between a checkpoint's Policy and the live agent so far;
@@ -129,6 +130,7 @@ class RunContext(TrainContext):
         self._boundary = {"env": self.env.get_state(), "rng": snapshot.rng_state(),
                           "iteration": iteration, "steps": steps}
         self.last_good.keep(iteration, self._boundary, save)
+        self._note_overflows(stats)
         figures = {**stats, metrics.STEPS_PER_S: steps_per_s,
                    metrics.MUJOCO_WARNINGS: self._pop_mujoco_warnings(), **(scalars or {})}
         for tag, value in figures.items():
@@ -173,6 +175,16 @@ class RunContext(TrainContext):
                 f"reset and counted ({metrics.INSTABILITIES}), and further warnings in "
                 f"{metrics.MUJOCO_WARNINGS}", highlight=False, soft_wrap=True)
         return count
+
+    def _note_overflows(self, stats: Mapping[str, float]) -> None:
+        overflows = sorted(k.removeprefix(metrics.OVERFLOW) for k in stats
+                           if k.startswith(metrics.OVERFLOW))
+        if overflows and not self._told_overflows:
+            self._told_overflows = True
+            self.progress.console.print(
+                f"note: MuJoCo Warp's {', '.join(overflows)} buffer overflowed; the envs "
+                f"concerned are reset and counted ({metrics.OVERFLOW}<buffer>): raise "
+                "env.nconmax or env.njmax", highlight=False, soft_wrap=True)
 
     def save(self, save: Save) -> None:
         """A complete checkpoint set of the current iteration (labcli/runs/checkpoints.py), with

@@ -48,9 +48,12 @@ class LoadedPolicy:
 
 def load(*, run_dir: Path | None = None, checkpoint: Path | None = None,
          task: str | None = None, framework: str | None = None, logs_dir: Path | None = None,
-         num_envs: int | None = None, seed: int = 0) -> LoadedPolicy:
+         num_envs: int | None = None, seed: int = 0,
+         overrides: Sequence[str] = ()) -> LoadedPolicy:
     """Find the run (a checkpoint's, `run_dir`, or the newest matching one), rebuild its env
-    from params/env.yaml on the CPU and load the checkpoint as a Policy."""
+    from params/env.yaml on the CPU and load the checkpoint as a Policy. The task's
+    `play_overrides` (e.g. observation noise off) apply, and `overrides` may set those keys
+    only."""
     if num_envs is not None and num_envs <= 0:
         raise LabError(f"--num-envs must be a positive integer, got {num_envs}")
     logs_dir = logs_dir or rundir.default_logs_dir()
@@ -66,6 +69,7 @@ def load(*, run_dir: Path | None = None, checkpoint: Path | None = None,
     _, ckpt = checkpoints.find(str(checkpoint or run.dir), logs_dir, spec.name, fw_spec)
     layers = [run.params(rundir.ENV_PARAMS)]
     config.check_saved(spec.config_class, "env", run.dir / rundir.ENV_PARAMS, layers[0])
+    layers += [dict(spec.config_class.play_overrides), _play_settings(spec, overrides)]
     if num_envs is not None:
         layers.append({"num_envs": num_envs})
     env_cfg = config.build(spec.config_class, "env", layers)
@@ -78,6 +82,19 @@ def load(*, run_dir: Path | None = None, checkpoint: Path | None = None,
         env.close()
         raise
     return LoadedPolicy(run, spec, fw, ckpt, env, policy)
+
+
+def _play_settings(spec: Any, overrides: Sequence[str]) -> dict[str, Any]:
+    """`--set` for a run: only what a task lets play change (its `play_overrides` keys)."""
+    layers = config.parse_set(overrides)
+    allowed = set(spec.config_class.play_overrides)
+    wrong = [f"agent.{k}" for k in layers["agent"]] + [
+        f"env.{k}" for k in layers["env"] if k not in allowed]
+    if wrong:
+        raise LabError(f"--set {wrong[0]} cannot change a run that plays with its own params",
+                       f"a run of task '{spec.name}' may set: "
+                       f"{', '.join(f'env.{k}' for k in sorted(allowed)) or 'nothing'}")
+    return layers["env"]
 
 
 @dataclass
@@ -112,7 +129,7 @@ def rollout(env: Any, act, episodes: int, seed: int = 0) -> Episodes:
         done = (terminated | truncated).cpu()
         if not done.any():
             continue
-        ep = info["episode"]
+        ep = info["lab_episode"]
         causes = info["terminations"].cpu()
         for i in done.nonzero().flatten().tolist():
             if taken[i] >= per_env or len(out.returns) >= episodes:

@@ -15,7 +15,13 @@ UNSTABLE_VELOCITY = 1e6
 
 
 class Sim:
-    """`num_envs` copies of one MjModel. `qpos`, `qvel`, `ctrl` are live `[num_envs, n]` views."""
+    """`num_envs` copies of one MjModel. `qpos`, `qvel`, `ctrl` and `sensordata` are live
+    `[num_envs, n]` views.
+
+    `sensordata` holds the model's sensors as MuJoCo computes them inside its last physics step
+    (before that step's integration, on both backends), and zeros for an env reset since: it is
+    how a task reads what qpos and qvel do not hold (contact forces, joint wrenches, actuator
+    forces, accelerations)."""
 
     model: mujoco.MjModel
     num_envs: int
@@ -23,6 +29,7 @@ class Sim:
     qpos: torch.Tensor
     qvel: torch.Tensor
     ctrl: torch.Tensor
+    sensordata: torch.Tensor
     nthread: int | None = None  # CPU threads that step the physics, where a backend has them
 
     def step(self, nstep: int) -> None:
@@ -36,6 +43,11 @@ class Sim:
     def unstable(self) -> torch.Tensor:
         """Envs whose state diverged (non-finite or absurd velocities)."""
         return ~(self.qvel.abs() < UNSTABLE_VELOCITY).all(dim=1)
+
+    def pop_overflows(self) -> dict[str, float]:
+        """Env steps, since the last call, in which a fixed-size buffer overflowed, by buffer
+        name (MuJoCo Warp's contact and constraint buffers; such envs count as unstable)."""
+        return {}
 
     def close(self) -> None:
         pass
@@ -54,7 +66,8 @@ def _warp_installed() -> bool:
 
 
 def make_sim(backend: str, model: mujoco.MjModel, num_envs: int, device: str,
-             nthread: int | None = None) -> Sim:
+             nthread: int | None = None, nconmax: int | None = None,
+             njmax: int | None = None) -> Sim:
     if backend == "cpu":
         from labcli.envs.sim.cpu import CpuSim
 
@@ -63,14 +76,15 @@ def make_sim(backend: str, model: mujoco.MjModel, num_envs: int, device: str,
                            "use --device cpu, or --backend warp for a GPU")
         return CpuSim(model, num_envs, nthread)
     if backend == "warp":
-        return _make_warp_sim(model, num_envs, device)
+        return _make_warp_sim(model, num_envs, device, nconmax, njmax)
     raise LabError(f"unknown backend '{backend}'", f"choose one of: {', '.join(BACKENDS)}")
 
 
 WARP_INSTALL_HINT = 'pip install -e ".[warp]" on a machine with an NVIDIA GPU, or use --backend cpu'
 
 
-def _make_warp_sim(model: mujoco.MjModel, num_envs: int, device: str) -> Sim:
+def _make_warp_sim(model: mujoco.MjModel, num_envs: int, device: str, nconmax: int | None,
+                   njmax: int | None) -> Sim:
     """MuJoCo Warp on CUDA; warp is imported here only, so `lab` runs without it."""
     if torch.device(device).type != "cuda":
         raise LabError(f"the warp backend keeps its state on a CUDA device, not on '{device}'",
@@ -83,4 +97,4 @@ def _make_warp_sim(model: mujoco.MjModel, num_envs: int, device: str) -> Sim:
     except ImportError as exc:
         raise LabError(f"the warp backend needs MuJoCo Warp, which is not installed ({exc})",
                        WARP_INSTALL_HINT) from exc
-    return WarpSim(model, num_envs, device)
+    return WarpSim(model, num_envs, device, nconmax, njmax)

@@ -137,6 +137,7 @@ class CpuSim(Sim):
         mujoco.mj_getState(model, data, self._default, FULL)
         self._state = np.tile(self._default, (num_envs, 1))
         self._ctrl = np.zeros((num_envs, model.nu))
+        self._sensordata = np.zeros((num_envs, model.nsensordata))
         self._out: np.ndarray | None = None
 
         # torch views of the numpy arrays, sharing their memory: MuJoCo and torch see one state.
@@ -145,6 +146,7 @@ class CpuSim(Sim):
         self.qpos = self._state_t[:, _state_slice(model, mujoco.mjtState.mjSTATE_QPOS)]
         self.qvel = self._state_t[:, _state_slice(model, mujoco.mjtState.mjSTATE_QVEL)]
         self.ctrl = torch.from_numpy(self._ctrl)
+        self.sensordata = torch.from_numpy(self._sensordata)
 
     def step(self, nstep: int) -> None:
         if self._out is None or self._out.shape[1] != nstep:
@@ -174,6 +176,8 @@ class CpuSim(Sim):
             else:
                 self._split = max(split - self._balance_step, 1)
         self._state[:] = self._out[:, -1]
+        if self.model.nsensordata:
+            self._sensordata[:] = self._sensors[:, -1]
 
     def _roll(self, runner: rollout.Rollout, datas: list[mujoco.MjData], start: int, stop: int,
               nstep: int) -> None:
@@ -189,6 +193,8 @@ class CpuSim(Sim):
         # One `where` written straight into the state (out=): faster here than numpy's
         # boolean-mask assignment, which first finds the masked rows.
         torch.where(mask[:, None], self._default_t, self._state_t, out=self._state_t)
+        if self.model.nsensordata:
+            self.sensordata.masked_fill_(mask[:, None], 0.0)
 
     def close(self) -> None:
         if self._stop_worker is not None:

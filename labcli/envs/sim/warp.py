@@ -79,7 +79,8 @@ def compiling_notice(cache_dir: str) -> Iterator[None]:
 
 
 class WarpSim(Sim):
-    def __init__(self, model: mujoco.MjModel, num_envs: int, device: str = "cuda"):
+    def __init__(self, model: mujoco.MjModel, num_envs: int, device: str = "cuda",
+                 nconmax: int | None = None, njmax: int | None = None):
         self.model = model
         self.num_envs = num_envs
         cache_dir = init_warp()
@@ -93,8 +94,12 @@ class WarpSim(Sim):
         with wp.ScopedDevice(self._wp_device):
             self._m = mjw.put_model(model)
             may_collide = self._m.nxn_geom_pair_filtered.shape[0] > 0
-            self._d = mjw.put_data(model, data, nworld=num_envs,
-                                   **constraint_capacity(model, may_collide))
+            capacity = constraint_capacity(model, may_collide)
+            # The task's sizes win (Isaac Lab's Newton configs give them per task): MuJoCo
+            # Warp's own estimates are generous, and every slot costs throughput.
+            capacity.update({k: v for k, v in (("nconmax", nconmax), ("njmax", njmax))
+                             if v is not None})
+            self._d = mjw.put_data(model, data, nworld=num_envs, **capacity)
             # Reset mask: a persistent array, so the captured reset graph keeps its address.
             self._mask = wp.zeros(num_envs, dtype=bool)
         self._mask_t = wp.to_torch(self._mask)
@@ -102,6 +107,17 @@ class WarpSim(Sim):
         self.qpos = wp.to_torch(self._d.qpos)
         self.qvel = wp.to_torch(self._d.qvel)
         self.ctrl = wp.to_torch(self._d.ctrl)
+        self.sensordata = wp.to_torch(self._d.sensordata)
+        # Per env, the buffers that overflowed in a step (a bitmask MuJoCo Warp sets and never
+        # clears): counted per buffer on the device and cleared after each step.
+        overflow = getattr(self._d, "overflow", None)
+        self._overflow = wp.to_torch(overflow) if overflow is not None else None
+        kinds = [k for k in getattr(mjw, "OverflowType", []) if k.value and
+                 k.value & (k.value - 1) == 0]
+        self._overflow_names = [k.name for k in kinds]
+        self._overflow_bits = torch.tensor([k.value for k in kinds], device=self.device)
+        self._overflow_counts = torch.zeros(len(kinds), dtype=torch.float64, device=self.device)
+        self._overflowed = torch.zeros(num_envs, dtype=torch.bool, device=self.device)
 
         self._graphs: dict[object, wp.Graph | None] = {}
         self._streams: dict[int, wp.Stream] = {}
@@ -117,10 +133,31 @@ class WarpSim(Sim):
 
     def step(self, nstep: int) -> None:
         self._run(nstep, lambda: self._substeps(nstep))
+        if self._overflow is not None and self._overflow_names:
+            flags = self._overflow
+            hit = (flags[:, None] & self._overflow_bits).ne(0)
+            self._overflow_counts += hit.sum(dim=0)
+            torch.ne(flags, 0, out=self._overflowed)
+            flags.zero_()
+
+    def unstable(self) -> torch.Tensor:
+        unstable = super().unstable()
+        if self._overflow is not None and self._overflow_names:
+            unstable |= self._overflowed
+        return unstable
+
+    def pop_overflows(self) -> dict[str, float]:
+        if not self._overflow_names:
+            return {}
+        counts = self._overflow_counts.tolist()
+        self._overflow_counts.zero_()
+        return {name: n for name, n in zip(self._overflow_names, counts, strict=True) if n}
 
     def reset_to_defaults(self, mask: torch.Tensor) -> None:
         self._mask_t.copy_(mask)
         self._run(RESET, self._reset_masked)
+        if self.model.nsensordata:  # as the cpu backend: a reset env's sensors read 0
+            self.sensordata.masked_fill_(mask[:, None], 0.0)
 
     def close(self) -> None:
         self._graphs.clear()

@@ -1,0 +1,368 @@
+"""The settings of a robot task's terms, as `--set env.<group>.<term>.<key>=VALUE` sets them.
+
+pydantic only (no torch, no MuJoCo): a task's config imports these, and `lab train` validates
+its configs before it imports torch. Each term's code is named by its class's `impl`, a
+"module:name" reference resolved when the env is built (labcli/envs/mdp/task.py). A group is a
+pydantic model whose fields are its terms, in order; a field set to None (`--set
+env.rewards.energy=null`) leaves that term out.
+"""
+
+from __future__ import annotations
+
+from typing import Any, ClassVar
+
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+from labcli.envs.config import TaskConfig
+
+Range = tuple[float, float]
+
+
+class Term(BaseModel):
+    """A term's parameters; `impl` names the code that computes it."""
+
+    model_config = ConfigDict(extra="forbid", validate_assignment=True, allow_inf_nan=False)
+    impl: ClassVar[str]
+
+
+def _check_range(name: str, value: Range | None) -> None:
+    if value is not None and value[0] > value[1]:
+        raise ValueError(f"{name} is ({value[0]:g}, {value[1]:g}): its low end is above its "
+                         f"high end; give (low, high)")
+
+
+class RangeChecked(Term):
+    """Checks every field holding a (low, high) range, or a mapping of them."""
+
+    @model_validator(mode="after")
+    def _ranges_ordered(self) -> RangeChecked:
+        for name, value in self:
+            if isinstance(value, dict):
+                for key, item in value.items():
+                    _check_range(f"{name}.{key}", item)
+            elif isinstance(value, tuple) and len(value) == 2:
+                _check_range(name, value)
+        return self
+
+
+# observations ---------------------------------------------------------------------------------
+class ObsTerm(RangeChecked):
+    """An observation term: `scale` times its value, then clipped to `clip`; with the task's
+    `observation_noise` on (training; `lab play` turns it off unless asked), uniform noise in
+    (-noise, noise) is added first, as Isaac Lab's `Unoise`."""
+
+    scale: float = 1.0
+    clip: Range | None = None
+    noise: float = Field(0.0, ge=0.0)
+
+
+class BaseHeight(ObsTerm):
+    impl: ClassVar[str] = "labcli.envs.mdp.observations:base_height"
+
+
+class BaseLinVel(ObsTerm):
+    """The root body's linear velocity in its own frame (m/s)."""
+
+    impl: ClassVar[str] = "labcli.envs.mdp.observations:base_lin_vel"
+
+
+class BaseAngVel(ObsTerm):
+    """The root body's angular velocity in its own frame (rad/s)."""
+
+    impl: ClassVar[str] = "labcli.envs.mdp.observations:base_ang_vel"
+
+
+class ProjectedGravity(ObsTerm):
+    impl: ClassVar[str] = "labcli.envs.mdp.observations:projected_gravity"
+
+
+class BaseYawRoll(ObsTerm):
+    impl: ClassVar[str] = "labcli.envs.mdp.observations:base_yaw_roll"
+
+
+class Target(Term):
+    """A term about a target position in the world (Isaac Lab's classic tasks: far ahead)."""
+
+    target: tuple[float, float, float] = (1000.0, 0.0, 0.0)
+
+
+class TargetObs(Target, ObsTerm):
+    pass
+
+
+class AngleToTarget(TargetObs):
+    impl: ClassVar[str] = "labcli.envs.mdp.observations:base_angle_to_target"
+
+
+class UpProj(ObsTerm):
+    impl: ClassVar[str] = "labcli.envs.mdp.observations:base_up_proj"
+
+
+class HeadingProj(TargetObs):
+    impl: ClassVar[str] = "labcli.envs.mdp.observations:base_heading_proj"
+
+
+class JointPos(ObsTerm):
+    """Joint positions relative to the default pose (rad or m)."""
+
+    impl: ClassVar[str] = "labcli.envs.mdp.observations:joint_pos_rel"
+
+
+class JointPosNormalized(ObsTerm):
+    """Joint positions mapped from their limits to [-1, 1]."""
+
+    impl: ClassVar[str] = "labcli.envs.mdp.observations:joint_pos_limit_normalized"
+
+
+class JointVel(ObsTerm):
+    impl: ClassVar[str] = "labcli.envs.mdp.observations:joint_vel_rel"
+
+
+class LastAction(ObsTerm):
+    impl: ClassVar[str] = "labcli.envs.mdp.observations:last_action"
+
+
+class BodyWrench(ObsTerm):
+    """The force and torque each named body receives from its parent through its joint, in the
+    body's frame (N, N m): Isaac Lab's `body_incoming_wrench`, read from MuJoCo force and torque
+    sensors that the task adds to the model."""
+
+    impl: ClassVar[str] = "labcli.envs.mdp.observations:body_incoming_wrench"
+    bodies: list[str]
+
+
+class ContactForces(ObsTerm):
+    """The net contact force on each named body (N, world frame), from MuJoCo contact sensors
+    that the task adds to the model."""
+
+    impl: ClassVar[str] = "labcli.envs.mdp.observations:contact_forces"
+    bodies: list[str]
+
+
+# rewards ---------------------------------------------------------------------------------------
+class RewardTerm(Term):
+    """A reward term: its unweighted value per env step, times `weight`."""
+
+    weight: float
+
+
+class Alive(RewardTerm):
+    impl: ClassVar[str] = "labcli.envs.mdp.rewards:is_alive"
+
+
+class Progress(Target, RewardTerm):
+    """The step's reduction of the horizontal distance to the target, divided by the step's
+    duration (m/s): Isaac Lab's `progress_reward`."""
+
+    impl: ClassVar[str] = "labcli.envs.mdp.rewards:progress_reward"
+
+
+class Upright(RewardTerm):
+    """1 where the root's up axis projects on the world's above `threshold`."""
+
+    impl: ClassVar[str] = "labcli.envs.mdp.rewards:upright_posture_bonus"
+    threshold: float = 0.93
+
+
+class MoveToTarget(Target, RewardTerm):
+    """The heading's projection on the direction to the target over `threshold`, capped at 1."""
+
+    impl: ClassVar[str] = "labcli.envs.mdp.rewards:move_to_target_bonus"
+    threshold: float = Field(0.8, gt=0)
+
+
+class ActionL2(RewardTerm):
+    impl: ClassVar[str] = "labcli.envs.mdp.rewards:action_l2"
+
+
+class ActionRateL2(RewardTerm):
+    impl: ClassVar[str] = "labcli.envs.mdp.rewards:action_rate_l2"
+
+
+class GearWeighted(RewardTerm):
+    """Per joint, its actuator's gear over the largest gear (Isaac Lab's `gear_ratio_scaled`)."""
+
+
+class Energy(GearWeighted):
+    """sum |action x joint velocity x gear ratio|: Isaac Lab's `power_consumption`."""
+
+    impl: ClassVar[str] = "labcli.envs.mdp.rewards:power_consumption"
+
+
+class JointPosLimits(GearWeighted):
+    """Over the joints past `threshold` of their normalized range, how far past, scaled to the
+    rest of the range and weighted by gear ratio: Isaac Lab's `joint_pos_limits_penalty_ratio`."""
+
+    impl: ClassVar[str] = "labcli.envs.mdp.rewards:joint_pos_limits_penalty_ratio"
+    threshold: float = Field(0.99, gt=0, lt=1)
+
+
+class JointTorquesL2(RewardTerm):
+    """sum of squared actuator torques at the joints (N m), from MuJoCo actuator-force sensors."""
+
+    impl: ClassVar[str] = "labcli.envs.mdp.rewards:joint_torques_l2"
+
+
+class JointAccL2(RewardTerm):
+    """sum of squared joint accelerations over the env step ((rad/s^2)^2)."""
+
+    impl: ClassVar[str] = "labcli.envs.mdp.rewards:joint_acc_l2"
+
+
+class FlatOrientationL2(RewardTerm):
+    """The squared horizontal part of gravity in the root's frame."""
+
+    impl: ClassVar[str] = "labcli.envs.mdp.rewards:flat_orientation_l2"
+
+
+class LinVelZL2(RewardTerm):
+    impl: ClassVar[str] = "labcli.envs.mdp.rewards:lin_vel_z_l2"
+
+
+class AngVelXYL2(RewardTerm):
+    impl: ClassVar[str] = "labcli.envs.mdp.rewards:ang_vel_xy_l2"
+
+
+# terminations ----------------------------------------------------------------------------------
+class TerminationTerm(Term):
+    pass
+
+
+class BaseHeightBelow(TerminationTerm):
+    impl: ClassVar[str] = "labcli.envs.mdp.terminations:root_height_below_minimum"
+    minimum_height: float
+
+
+class BadOrientation(TerminationTerm):
+    """The root tilted more than `limit_angle` (rad) from upright."""
+
+    impl: ClassVar[str] = "labcli.envs.mdp.terminations:bad_orientation"
+    limit_angle: float = Field(gt=0)
+
+
+class IllegalContact(TerminationTerm):
+    """A net contact force above `threshold` (N) on any of the named bodies."""
+
+    impl: ClassVar[str] = "labcli.envs.mdp.terminations:illegal_contact"
+    bodies: list[str]
+    threshold: float = Field(1.0, ge=0)
+
+
+# events ----------------------------------------------------------------------------------------
+class EventTerm(RangeChecked):
+    pass
+
+
+class ResetJointsByOffset(EventTerm):
+    """At reset, each joint's default position and velocity plus a uniform draw from these
+    ranges, positions clamped to the joint's limits."""
+
+    impl: ClassVar[str] = "labcli.envs.mdp.events:reset_joints_by_offset"
+    position_range: Range = (0.0, 0.0)
+    velocity_range: Range = (0.0, 0.0)
+
+
+POSE_KEYS = ("x", "y", "z", "roll", "pitch", "yaw")
+
+
+class ResetRootUniform(EventTerm):
+    """At reset, the root's default pose plus uniform offsets per key of `pose_range`
+    (x, y, z in m; roll, pitch, yaw in rad), and velocities drawn from `velocity_range`
+    (x, y, z in m/s; roll, pitch, yaw in rad/s, world frame). Keys left out stay at 0."""
+
+    impl: ClassVar[str] = "labcli.envs.mdp.events:reset_root_state_uniform"
+    pose_range: dict[str, Range] = Field(default_factory=dict)
+    velocity_range: dict[str, Range] = Field(default_factory=dict)
+
+    @model_validator(mode="after")
+    def _known_keys(self) -> ResetRootUniform:
+        for field in ("pose_range", "velocity_range"):
+            unknown = set(getattr(self, field)) - set(POSE_KEYS)
+            if unknown:
+                raise ValueError(f"{field} has {sorted(unknown)}; its keys are "
+                                 f"{', '.join(POSE_KEYS)}")
+        return self
+
+
+class PushByVelocity(EventTerm):
+    """Every `interval_s` (drawn per env from the range), the root's velocity is changed by a
+    uniform draw from `velocity_range` (keys as ResetRootUniform's): Isaac Lab's
+    `push_by_setting_velocity`, as an interval event."""
+
+    impl: ClassVar[str] = "labcli.envs.mdp.events:push_by_setting_velocity"
+    interval_s: Range = (10.0, 15.0)
+    velocity_range: dict[str, Range] = Field(default_factory=dict)
+
+
+# actions ---------------------------------------------------------------------------------------
+class ActionTerm(Term):
+    """How actions in [-1, 1] become controls: `scale` for every actuator, or per actuator by
+    regular expressions on their names (the first that matches wins)."""
+
+    scale: float | dict[str, float] = 1.0
+
+
+class JointEffort(ActionTerm):
+    """ctrl = scale x action: with MuJoCo motor actuators (gear g), a joint torque of g x ctrl."""
+
+    impl: ClassVar[str] = "labcli.envs.mdp.actions:JointEffortAction"
+
+
+class JointPosition(ActionTerm):
+    """ctrl = default joint position + scale x action: targets for MuJoCo position actuators,
+    whose kp, kv and force limits integrate the PD inside every physics substep."""
+
+    impl: ClassVar[str] = "labcli.envs.mdp.actions:JointPositionAction"
+
+
+# success --------------------------------------------------------------------------------------
+class MovedTowardTarget(Target):
+    """An episode that reached its time-out having moved `distance` m or more toward the target
+    (horizontally, from where it started) succeeded."""
+
+    impl: ClassVar[str] = "labcli.envs.mdp.success:moved_toward_target"
+    distance: float = Field(gt=0)
+
+
+# the task ---------------------------------------------------------------------------------------
+class Group(BaseModel):
+    """A group of terms: each field one term, None to leave it out."""
+
+    model_config = ConfigDict(extra="forbid", validate_assignment=True)
+
+    def terms(self) -> list[tuple[str, Term]]:
+        return [(name, term) for name, term in self if term is not None]
+
+
+class RobotTaskConfig(TaskConfig):
+    """The settings of a task built from terms (`labcli.envs.mdp.task.RobotTask`). A subclass
+    sets its groups' models and defaults; weights live with their rewards, not in
+    `reward_weights`."""
+
+    play_overrides: ClassVar[dict[str, Any]] = {"observation_noise": False}
+
+    root_body: str | None = Field(None, description="the floating base; None: the first body "
+                                  "with a free joint")
+    default_pose: str | None = Field("home", description="the model's keyframe that resets "
+                                     "start from (Isaac Lab's init_state); None: qpos0")
+    # Concrete types: a run's params/env.yaml is read back into them. A subclass declares its own
+    # (e.g. `actions: JointPosition = JointPosition(scale=0.25)`).
+    actions: JointEffort = JointEffort()
+    observations: Group = Group()
+    rewards: Group = Group()
+    terminations: Group = Group()
+    events: Group = Group()
+    observation_noise: bool = Field(True, description="add each observation term's noise "
+                                    "(training; lab play sets it false unless asked)")
+    success: Term | None = None
+    reward_weights: dict[str, float] = Field(default_factory=dict, exclude=True)
+
+    @model_validator(mode="after")
+    def _weights_live_with_rewards(self) -> RobotTaskConfig:
+        if self.reward_weights:
+            raise ValueError("a robot task's reward weights are env.rewards.<term>.weight, "
+                             "not env.reward_weights")
+        return self
+
+    def weights(self) -> dict[str, float]:
+        return {name: term.weight for name, term in self.rewards.terms()}

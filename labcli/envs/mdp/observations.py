@@ -1,0 +1,110 @@
+"""Observation terms: each a function of the task returning `[num_envs, k]`, or a class made
+once per task and called each step. Names follow Isaac Lab's `mdp` module."""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import mujoco
+import torch
+
+from labcli.envs.mdp import config as c
+from labcli.envs.mdp import math, sensors
+
+if TYPE_CHECKING:
+    from labcli.envs.mdp.task import RobotTask
+
+
+def base_height(task: RobotTask, cfg: c.BaseHeight) -> torch.Tensor:
+    return task.robot.root_pos[:, 2:3]
+
+
+def base_lin_vel(task: RobotTask, cfg: c.BaseLinVel) -> torch.Tensor:
+    return task.robot.root_lin_vel_b
+
+
+def base_ang_vel(task: RobotTask, cfg: c.BaseAngVel) -> torch.Tensor:
+    return task.robot.root_ang_vel_b
+
+
+def projected_gravity(task: RobotTask, cfg: c.ProjectedGravity) -> torch.Tensor:
+    return task.robot.projected_gravity_b
+
+
+def base_yaw_roll(task: RobotTask, cfg: c.BaseYawRoll) -> torch.Tensor:
+    roll, _, yaw = math.roll_pitch_yaw(task.robot.root_quat)
+    return torch.stack((yaw, roll), dim=1)
+
+
+def base_up_proj(task: RobotTask, cfg: c.UpProj) -> torch.Tensor:
+    return -task.robot.projected_gravity_b[:, 2:3]
+
+
+def direction_to_target(task: RobotTask, target: tuple[float, float, float]) -> torch.Tensor:
+    """The horizontal unit vector from the root toward `target`, `[n, 3]`."""
+    to_target = task.constant(target) - task.robot.root_pos
+    to_target[:, 2] = 0.0
+    return torch.nn.functional.normalize(to_target, dim=1)
+
+
+def base_heading_proj(task: RobotTask, cfg: c.HeadingProj) -> torch.Tensor:
+    """The root's forward (x) axis projected on the horizontal direction to the target."""
+    heading = task.robot.forward_w * direction_to_target(task, cfg.target)
+    return heading.sum(dim=1, keepdim=True)
+
+
+def base_angle_to_target(task: RobotTask, cfg: c.AngleToTarget) -> torch.Tensor:
+    to_target = task.constant(cfg.target) - task.robot.root_pos
+    _, _, yaw = math.roll_pitch_yaw(task.robot.root_quat)
+    angle = torch.atan2(to_target[:, 1], to_target[:, 0]) - yaw
+    return math.wrap_to_pi(angle)[:, None]
+
+
+def joint_pos_rel(task: RobotTask, cfg: c.JointPos) -> torch.Tensor:
+    return task.robot.joint_pos - task.robot.default_joint_pos
+
+
+def joint_pos_limit_normalized(task: RobotTask, cfg: c.JointPosNormalized) -> torch.Tensor:
+    r = task.robot
+    return (2.0 * r.joint_pos - r.joint_upper - r.joint_lower) / (r.joint_upper - r.joint_lower)
+
+
+def joint_vel_rel(task: RobotTask, cfg: c.JointVel) -> torch.Tensor:
+    return task.robot.joint_vel
+
+
+def last_action(task: RobotTask, cfg: c.LastAction) -> torch.Tensor:
+    return task.action
+
+
+class body_incoming_wrench:  # noqa: N801 - a term, named as Isaac Lab's
+    """Force and torque sensors at each named body's frame, 6 values per body."""
+
+    def __init__(self, task: RobotTask, cfg: c.BodyWrench):
+        self.bodies = sensors.body_names(task.model, cfg.bodies)
+        self.data = sensors.columns(task, [sensors.wrench_names(b) for b in self.bodies])
+        self.names = [f"{b}.{axis}" for b in self.bodies
+                      for axis in ("fx", "fy", "fz", "tx", "ty", "tz")]
+
+    @staticmethod
+    def sensors(model: mujoco.MjModel, cfg: c.BodyWrench) -> list[sensors.Sensor]:
+        return [s for body in sensors.body_names(model, cfg.bodies) for s in sensors.wrench(body)]
+
+    def __call__(self) -> torch.Tensor:
+        return self.data()
+
+
+class contact_forces:  # noqa: N801
+    """Contact sensors on each named body, the net force (3 values) per body."""
+
+    def __init__(self, task: RobotTask, cfg: c.ContactForces):
+        self.bodies = sensors.body_names(task.model, cfg.bodies)
+        self.data = sensors.columns(task, [sensors.contact_names(b) for b in self.bodies])
+        self.names = [f"{b}.{axis}" for b in self.bodies for axis in ("fx", "fy", "fz")]
+
+    @staticmethod
+    def sensors(model: mujoco.MjModel, cfg: c.ContactForces) -> list[sensors.Sensor]:
+        return [sensors.contact(body) for body in sensors.body_names(model, cfg.bodies)]
+
+    def __call__(self) -> torch.Tensor:
+        return self.data()

@@ -1,0 +1,133 @@
+"""Named views of a floating-base robot's state: the root body's pose and velocities, the
+actuated joints' positions, velocities and limits, in actuator order. Made once; `update()`
+recomputes the derived quantities in place after every change of the state."""
+
+from __future__ import annotations
+
+import mujoco
+import torch
+
+from labcli.envs.mdp import math, names
+from labcli.envs.sim import Sim
+from labcli.errors import LabError
+
+FREE = mujoco.mjtJoint.mjJNT_FREE
+
+
+def columns(state: torch.Tensor, addresses: list[int]) -> tuple[torch.Tensor, torch.Tensor | None]:
+    """`state[:, addresses]` as a live view where the addresses are consecutive (no copy per
+    step), else a buffer and the index to gather it with (`gather_columns`)."""
+    first = addresses[0] if addresses else 0
+    if addresses == list(range(first, first + len(addresses))):
+        return state[:, first:first + len(addresses)], None
+    index = torch.tensor(addresses, dtype=torch.long, device=state.device)
+    return state.new_empty(state.shape[0], len(addresses)), index
+
+
+class Robot:
+    """The robot of a task: `root_*` views of its free joint's state, `joint_*` of the joints
+    its actuators drive. Positions in the world frame, `*_b` in the root body's frame."""
+
+    def __init__(self, sim: Sim, root_body: str | None = None, default_pose: str | None = None):
+        model = self.model = sim.model
+        self.sim = sim
+        self.root_joint = self._root_joint(model, root_body)
+        self.root_body = int(model.jnt_bodyid[self.root_joint])
+        qa, da = int(model.jnt_qposadr[self.root_joint]), int(model.jnt_dofadr[self.root_joint])
+        self.root_qpos, self.root_qvel = slice(qa, qa + 7), slice(da, da + 6)
+        self.root_pos = sim.qpos[:, qa:qa + 3]
+        self.root_quat = sim.qpos[:, qa + 3:qa + 7]
+        # MuJoCo's free joint: linear velocity in the world frame, angular in the body's.
+        self.root_lin_vel_w = sim.qvel[:, da:da + 3]
+        self.root_ang_vel_b = sim.qvel[:, da + 3:da + 6]
+
+        self.actuators = list(range(model.nu))
+        joint_ids = []
+        for a in self.actuators:
+            if model.actuator_trntype[a] != mujoco.mjtTrn.mjTRN_JOINT:
+                raise LabError(f"actuator '{names.all_names(model, 'actuator')[a]}' of model "
+                               f"'{names.model_name(model)}' drives no joint",
+                               "robot tasks drive hinge or slide joints through actuators")
+            joint_ids.append(int(model.actuator_trnid[a, 0]))
+        self.joint_ids = joint_ids
+        self.joint_names = [names.all_names(model, "joint")[j] for j in joint_ids]
+        qadr = [int(model.jnt_qposadr[j]) for j in joint_ids]
+        dadr = [int(model.jnt_dofadr[j]) for j in joint_ids]
+        self.joint_pos, self._qidx = columns(sim.qpos, qadr)
+        self.joint_vel, self._didx = columns(sim.qvel, dadr)
+        self._writes = [(sim.qpos, *_writer(sim.qpos, qadr)), (sim.qvel, *_writer(sim.qvel, dadr))]
+        dev, dtype = sim.qpos.device, sim.qpos.dtype
+
+        def row(values) -> torch.Tensor:
+            return torch.as_tensor(values, dtype=dtype, device=dev).expand(
+                sim.num_envs, len(joint_ids)).contiguous()
+
+        limited = model.jnt_limited[joint_ids].astype(bool)
+        lower = torch.as_tensor(model.jnt_range[joint_ids, 0])
+        upper = torch.as_tensor(model.jnt_range[joint_ids, 1])
+        # An unlimited joint's "limits" are wide enough that normalizing leaves it near 0.
+        lower[~torch.as_tensor(limited)], upper[~torch.as_tensor(limited)] = -1e3, 1e3
+        self.joint_lower, self.joint_upper = row(lower), row(upper)
+        # The default pose: a keyframe (Isaac Lab's init_state), else the MJCF's qpos0. Not by
+        # overwriting qpos0, which is also the reference of hinge angles in MuJoCo's kinematics.
+        home = (model.key_qpos[names.resolve_one(model, "key", default_pose)]
+                if default_pose is not None else model.qpos0)
+        self._home = torch.as_tensor(home, dtype=dtype, device=dev).expand(
+            sim.num_envs, model.nq).contiguous()
+        self._home_is_qpos0 = default_pose is None
+        self.default_joint_pos = row(home[qadr])
+        gear = torch.as_tensor(model.actuator_gear[self.actuators, 0]).abs()
+        self.gear = row(gear)
+        self.gear_ratio_scaled = row(gear / gear.max())
+
+        n = sim.num_envs
+        self.root_lin_vel_b = torch.empty(n, 3, dtype=dtype, device=dev)
+        self.projected_gravity_b = torch.empty(n, 3, dtype=dtype, device=dev)
+        self.forward_w = torch.empty(n, 3, dtype=dtype, device=dev)  # the root's x axis
+        self._down = torch.tensor([0.0, 0.0, -1.0], dtype=dtype, device=dev).expand(n, 3)
+        self._x_axis = torch.tensor([1.0, 0.0, 0.0], dtype=dtype, device=dev).expand(n, 3)
+        self.update()
+
+    @staticmethod
+    def _root_joint(model: mujoco.MjModel, root_body: str | None) -> int:
+        if root_body is not None:
+            body = names.resolve_one(model, "body", root_body)
+            joint = int(model.body_jntadr[body])
+            if joint < 0 or model.jnt_type[joint] != FREE:
+                raise LabError(f"body '{root_body}' of model '{names.model_name(model)}' has no "
+                               "free joint", "name the floating base as root_body")
+            return joint
+        free = [j for j in range(model.njnt) if model.jnt_type[j] == FREE]
+        if not free:
+            raise LabError(f"model '{names.model_name(model)}' has no free joint",
+                           "a robot task needs a floating base (<freejoint/> on its root body)")
+        return free[0]
+
+    def update(self) -> None:
+        if self._qidx is not None:
+            torch.index_select(self.sim.qpos, 1, self._qidx, out=self.joint_pos)
+        if self._didx is not None:
+            torch.index_select(self.sim.qvel, 1, self._didx, out=self.joint_vel)
+        q = self.root_quat
+        self.root_lin_vel_b.copy_(math.quat_rotate_inverse(q, self.root_lin_vel_w))
+        self.projected_gravity_b.copy_(math.quat_rotate_inverse(q, self._down))
+        self.forward_w.copy_(math.quat_rotate(q, self._x_axis))
+
+    def reset_to_default_pose(self, mask: torch.Tensor) -> None:
+        """The sim resets envs to qpos0; this puts the envs in `mask` at the default pose."""
+        if not self._home_is_qpos0:
+            torch.where(mask[:, None], self._home, self.sim.qpos, out=self.sim.qpos)
+
+    def write_joints(self, pos: torch.Tensor, vel: torch.Tensor, mask: torch.Tensor) -> None:
+        """Set the actuated joints of the envs in `mask` to `pos`, `vel` `[n, joints]`."""
+        m = mask[:, None]
+        for (state, view, index), value in zip(self._writes, (pos, vel), strict=True):
+            if index is None:
+                torch.where(m, value, view, out=view)
+            else:
+                state.index_copy_(1, index, torch.where(m, value, state.index_select(1, index)))
+
+
+def _writer(state: torch.Tensor, addresses: list[int]) -> tuple[torch.Tensor, torch.Tensor | None]:
+    view, index = columns(state, addresses)
+    return (view, None) if index is None else (state, index)

@@ -1,0 +1,29 @@
+"""Success terms: judged on an episode's final state at its time-out, `[num_envs]` booleans."""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import torch
+
+from labcli.envs.mdp import config as c
+from labcli.envs.mdp.observations import direction_to_target
+
+if TYPE_CHECKING:
+    from labcli.envs.mdp.task import RobotTask
+
+
+class moved_toward_target:  # noqa: N801
+    """How far the root moved toward the target since its episode began, horizontally."""
+
+    def __init__(self, task: RobotTask, cfg: c.MovedTowardTarget):
+        self.task, self.cfg = task, cfg
+        self.start = task.robot.root_pos.clone()
+
+    def reset(self, mask: torch.Tensor) -> None:
+        torch.where(mask[:, None], self.task.robot.root_pos, self.start, out=self.start)
+
+    def __call__(self) -> torch.Tensor:
+        moved = (self.task.robot.root_pos - self.start) * direction_to_target(self.task,
+                                                                              self.cfg.target)
+        return moved.sum(dim=1) >= self.cfg.distance

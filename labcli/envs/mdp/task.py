@@ -1,0 +1,203 @@
+"""`RobotTask`: a task assembled from the terms its config lists (labcli/envs/mdp/config.py),
+in the manner of Isaac Lab's manager-based envs, without the managers: the groups are pydantic
+models, each term's code a function or a small class named by its config.
+
+A term's code is either a function `f(task, cfg) -> Tensor`, called every step, or a class made
+once as `Term(task, cfg)` and called every step, which may also have:
+- `pre_physics()`: before the physics steps (remember what the step changes: progress, rates);
+- `reset(mask)`: after the envs in `mask` were reset (events draw their state here);
+- `names`: observation column names;
+- `sensors(model, cfg)` (a staticmethod): the MuJoCo sensors it reads (labcli/envs/mdp/sensors.py),
+  added to the model before it is compiled.
+"""
+
+from __future__ import annotations
+
+import inspect
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+import mujoco
+import torch
+
+from labcli import refs
+from labcli.envs.mdp import sensors
+from labcli.envs.mdp.config import Group, RobotTaskConfig, Term
+from labcli.envs.mdp.robot import Robot
+from labcli.envs.sim import Sim
+from labcli.envs.task import Task
+from labcli.errors import LabError
+
+AXES = ("x", "y", "z")
+
+
+def impl_of(term: Term) -> Any:
+    return refs.resolve(type(term).impl, f"term {type(term).__name__}")
+
+
+def _all_terms(cfg: RobotTaskConfig) -> list[Term]:
+    groups: Sequence[Group] = (cfg.observations, cfg.rewards, cfg.terminations, cfg.events)
+    return [cfg.actions, *(t for g in groups for _, t in g.terms()),
+            *([cfg.success] if cfg.success is not None else [])]
+
+
+class Built:
+    """A term's code made for a task: `__call__`, and the optional hooks (no-ops if absent)."""
+
+    def __init__(self, task: RobotTask, name: str, term: Term):
+        code = impl_of(term)
+        self.name, self.cfg = name, term
+        if inspect.isclass(code):
+            made = code(task, term)
+            self.compute: Callable[[], torch.Tensor] = made
+            self.pre_physics = getattr(made, "pre_physics", None)
+            self.reset = getattr(made, "reset", None)
+            self.names: list[str] | None = getattr(made, "names", None)
+        else:
+            self.compute = lambda: code(task, term)
+            self.pre_physics = self.reset = None
+            self.names = None
+
+
+class RobotTask(Task):
+    """Observations, rewards, terminations, events, actuation and success from `cfg`'s terms,
+    over `self.robot` (labcli/envs/mdp/robot.py)."""
+
+    cfg: RobotTaskConfig
+
+    @classmethod
+    def build_model(cls, cfg: RobotTaskConfig, path: Path) -> mujoco.MjModel:  # type: ignore[override]
+        spec = mujoco.MjSpec.from_file(str(path))
+        model = spec.compile()
+        needed = [s for term in _all_terms(cfg)
+                  for s in getattr(impl_of(term), "sensors", lambda m, t: [])(model, term)]
+        if needed:
+            for sensor in needed:
+                sensors.add(spec, sensor)
+            model = spec.compile()
+        if cfg.sim_dt is not None:
+            model.opt.timestep = cfg.sim_dt
+        return model
+
+    def __init__(self, cfg: RobotTaskConfig, sim: Sim):
+        super().__init__(cfg, sim)
+        self.model = sim.model
+        self._constants: dict[object, torch.Tensor] = {}
+        self.num_envs = n = sim.num_envs
+        self.step_dt = sim.model.opt.timestep * cfg.decimation
+        self.robot = Robot(sim, cfg.root_body, cfg.default_pose)
+        dev, dtype = sim.qpos.device, sim.qpos.dtype
+        self.ones = torch.ones(n, dtype=dtype, device=dev)
+        self.action = torch.zeros(n, sim.model.nu, dtype=dtype, device=dev)
+        self.previous_action = torch.zeros_like(self.action)
+        # Terms draw from the env's generator; the env sets it again before the first reset.
+        self.generator = torch.Generator(dev)
+
+        self.actuation = impl_of(cfg.actions)(self, cfg.actions)
+        self.action_names = [self.robot.joint_names[i] for i in range(sim.model.nu)]
+        self._obs = [Built(self, name, t) for name, t in cfg.observations.terms()]
+        self._rewards = [Built(self, name, t) for name, t in cfg.rewards.terms()]
+        self._terminations = [Built(self, name, t) for name, t in cfg.terminations.terms()]
+        self._events = [Built(self, name, t) for name, t in cfg.events.terms()]
+        self._success = (Built(self, "success", cfg.success) if cfg.success is not None
+                         else None)
+        every = [*self._obs, *self._rewards, *self._terminations, *self._events,
+                 *([self._success] if self._success else [])]
+        self._pre_physics = [b.pre_physics for b in every if b.pre_physics is not None]
+        # Events set the new state first; the other terms then remember it.
+        self._event_resets = [b.reset for b in self._events if b.reset is not None]
+        self._term_resets = [b.reset for b in every
+                             if b.reset is not None and b not in self._events]
+        self._noise_on = cfg.observation_noise
+        self._obs_post = [self._post(b) for b in self._obs]
+        self.observation_names = [name for b in self._obs for name in self._names(b)]
+        if not self.observation_names:
+            raise LabError("the task's config lists no observation terms",
+                           "give env.observations at least one term")
+
+    # the env's calls ---------------------------------------------------------------------------
+    def apply_actions(self, actions: torch.Tensor) -> None:
+        self.previous_action.copy_(self.action)
+        self.action.copy_(actions)
+        for hook in self._pre_physics:
+            hook()
+        self.actuation(self.action, self.sim.ctrl)
+
+    def action_commands(self) -> list[dict[str, Any]]:
+        return [{"action": name, "actuator": actuator, "command": command,
+                 "unit": self.action_units.get(name, "")}
+                for name, actuator, command in zip(
+                    self.action_names,
+                    [self.model.actuator(i).name for i in range(self.model.nu)],
+                    self.actuation.commands, strict=True)]
+
+    def update(self) -> None:
+        self.robot.update()
+
+    def observations(self) -> torch.Tensor:
+        return torch.cat([post(b.compute()) for b, post in zip(self._obs, self._obs_post,
+                                                                strict=True)], dim=1)
+
+    def reward_terms(self) -> dict[str, torch.Tensor]:
+        return {b.name: b.compute() for b in self._rewards}
+
+    def terminations(self) -> dict[str, torch.Tensor]:
+        return {b.name: b.compute() for b in self._terminations}
+
+    def reset(self, mask: torch.Tensor, generator: torch.Generator) -> None:
+        self.action.masked_fill_(mask[:, None], 0.0)
+        self.previous_action.masked_fill_(mask[:, None], 0.0)
+        self.robot.reset_to_default_pose(mask)
+        for hook in self._event_resets:
+            hook(mask)
+        self.robot.update()
+        for hook in self._term_resets:
+            hook(mask)
+
+    def success(self, time_out: torch.Tensor) -> torch.Tensor:
+        if self._success is None:
+            return torch.zeros_like(time_out)
+        return self._success.compute()
+
+    # helpers for terms -------------------------------------------------------------------------
+    def constant(self, values: Sequence[float] | float) -> torch.Tensor:
+        """A tensor of `values` on the sim's device and dtype, made on first use and kept (by
+        value): a tensor built from Python numbers in the step would be a host-to-device copy
+        on a GPU, which a CUDA graph cannot capture. Do not write into it."""
+        key = tuple(values) if isinstance(values, Sequence) else values
+        made = self._constants.get(key)
+        if made is None:
+            made = self._constants[key] = torch.as_tensor(
+                values, dtype=self.sim.qpos.dtype, device=self.sim.qpos.device)
+        return made
+
+    def _post(self, built: Built) -> Callable[[torch.Tensor], torch.Tensor]:
+        cfg = built.cfg
+        noise = cfg.noise if self._noise_on else 0.0
+        scale, clip = cfg.scale, cfg.clip
+
+        def post(value: torch.Tensor) -> torch.Tensor:
+            if noise:
+                value = value + (torch.rand(value.shape, generator=self.generator,
+                                            device=value.device, dtype=value.dtype)
+                                 * (2 * noise) - noise)
+            if scale != 1.0:
+                value = value * scale
+            if clip is not None:
+                value = value.clamp(clip[0], clip[1])
+            return value
+
+        return post
+
+    def _names(self, built: Built) -> list[str]:
+        width = built.compute().shape[1]
+        if built.names is not None:
+            return [f"{built.name}.{name}" for name in built.names]
+        if width == 1:
+            return [built.name]
+        if width == len(self.robot.joint_names):
+            return [f"{built.name}.{joint}" for joint in self.robot.joint_names]
+        if width == 3:
+            return [f"{built.name}.{axis}" for axis in AXES]
+        return [f"{built.name}[{i}]" for i in range(width)]

@@ -1,0 +1,40 @@
+"""Termination terms: each returns a boolean `[num_envs]`; time-outs are the env's business."""
+
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING
+
+import mujoco
+import torch
+
+from labcli.envs.mdp import config as c
+from labcli.envs.mdp import sensors
+
+if TYPE_CHECKING:
+    from labcli.envs.mdp.task import RobotTask
+
+
+def root_height_below_minimum(task: RobotTask, cfg: c.BaseHeightBelow) -> torch.Tensor:
+    return task.robot.root_pos[:, 2] < cfg.minimum_height
+
+
+def bad_orientation(task: RobotTask, cfg: c.BadOrientation) -> torch.Tensor:
+    """Tilted past the limit: the angle between the root's z axis and the world's up is
+    acos(-g_z) in the root's frame, compared as a cosine (no acos per step)."""
+    return -task.robot.projected_gravity_b[:, 2] < math.cos(cfg.limit_angle)
+
+
+class illegal_contact:  # noqa: N801 - a term, named as Isaac Lab's
+    def __init__(self, task: RobotTask, cfg: c.IllegalContact):
+        bodies = sensors.body_names(task.model, cfg.bodies)
+        self.forces = sensors.columns(task, [sensors.contact_names(b) for b in bodies])
+        self.count, self.threshold = len(bodies), cfg.threshold
+
+    @staticmethod
+    def sensors(model: mujoco.MjModel, cfg: c.IllegalContact) -> list[sensors.Sensor]:
+        return [sensors.contact(body) for body in sensors.body_names(model, cfg.bodies)]
+
+    def __call__(self) -> torch.Tensor:
+        forces = self.forces().view(-1, self.count, 3)
+        return (torch.linalg.vector_norm(forces, dim=2) > self.threshold).any(dim=1)

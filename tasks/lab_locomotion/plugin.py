@@ -1,0 +1,58 @@
+"""Registers Ant and Humanoid through the same hook a third-party package would use."""
+
+from pathlib import Path
+
+from labcli.envs.spec import TaskSpec
+from labcli.plugins.hookspecs import hookimpl
+
+HERE = Path(__file__).parent
+TASK = "labcli.envs.mdp.task:RobotTask"
+# Isaac Lab's agents/*_cfg for both tasks: 32 steps per env, [400, 200, 100] ELU networks, 5
+# epochs of 4 mini-batches, lr 5e-4 adapted to a KL of 0.01, no entropy bonus.
+NETWORK = [400, 200, 100]
+
+
+def _defaults(num_envs: int, max_iterations: int) -> dict:
+    env = {"env": {"num_envs": num_envs}}
+    return {
+        "rsl_rl": {**env, "agent": {
+            "max_iterations": max_iterations, "num_steps_per_env": 32,
+            "actor_hidden_dims": NETWORK, "critic_hidden_dims": NETWORK, "activation": "elu",
+            "learning_rate": 5e-4, "desired_kl": 0.01, "num_learning_epochs": 5,
+            "num_mini_batches": 4, "entropy_coef": 0.0, "empirical_normalization": True}},
+        "skrl": {**env, "agent": {
+            "max_iterations": max_iterations, "rollouts": 32, "learning_epochs": 5,
+            "mini_batches": 4, "learning_rate": 5e-4, "desired_kl": 0.01,
+            "hidden_sizes": NETWORK, "activation": "elu", "value_loss_scale": 2.0,
+            "reward_scale": 0.6}},
+        "sb3": {**env, "agent": {
+            "max_iterations": max_iterations, "n_steps": 32, "batch_size": num_envs * 32 // 4,
+            "n_epochs": 5, "learning_rate": 5e-4, "vf_coef": 2.0, "max_grad_norm": 1.0,
+            "net_arch": NETWORK, "activation": "elu"}},
+        "rl_games": {**env, "agent": {
+            "max_iterations": max_iterations, "horizon_length": 32, "mini_epochs": 5,
+            "minibatch_size_per_env": 8, "learning_rate": 5e-4, "kl_threshold": 0.01,
+            "units": NETWORK, "reward_scale": 0.6}},
+    }
+
+
+@hookimpl
+def register_tasks(register):
+    register(TaskSpec(
+        name="ant",
+        task=TASK,
+        config="lab_locomotion.config:AntConfig",
+        model=HERE / "ant.xml",
+        description="Isaac Lab's Ant: a four-legged ant runs toward a target 1 km ahead",
+        success="8 m or more toward the target by the 16 s time-out",
+        framework_defaults=_defaults(num_envs=256, max_iterations=500),
+    ))
+    register(TaskSpec(
+        name="humanoid",
+        task=TASK,
+        config="lab_locomotion.config:HumanoidConfig",
+        model=HERE / "humanoid.xml",
+        description="Isaac Lab's Humanoid: a 17-joint humanoid runs toward a target 1 km ahead",
+        success="8 m or more toward the target by the 16 s time-out",
+        framework_defaults=_defaults(num_envs=256, max_iterations=1000),
+    ))
