@@ -45,12 +45,18 @@ def bench(
         out().print_json(json.dumps([row.as_dict() for row in rows]))
         return
     columns = ["task", "backend", "threads", "envs", "env-steps/s"]
+    with_rollout = any(row.rollout_steps_per_s for row in rows)
+    if with_rollout:
+        columns += ["mujoco.rollout", "ratio"]
     if framework:
         columns += ["framework", "training steps/s"]
     rows_table = table(*columns, title="lab bench")
     for row in rows:
         cells = [row.task, row.backend, str(row.threads or "-"), str(row.num_envs),
                  f"{row.env_steps_per_s:,.0f}"]
+        if with_rollout:
+            cells += ([f"{row.rollout_steps_per_s:,.0f}", f"{row.ratio_to_rollout:.2f}"]
+                      if row.rollout_steps_per_s else ["-", "-"])
         if framework:
             cells += [row.framework, f"{row.train_steps_per_s:,.0f}"]
         rows_table.add_row(*cells)

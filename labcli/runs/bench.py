@@ -9,7 +9,10 @@ from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
+import mujoco
+import numpy as np
 import torch
+from mujoco import rollout
 from rich.console import Console
 
 from labcli.envs import metrics
@@ -32,6 +35,9 @@ class BenchRow:
     framework: str | None = None
     train_steps_per_s: float | None = None
     threads: int | None = None  # the cpu backend's physics threads
+    # cpu backend: raw `mujoco.rollout` of the same model and decimation in the same run
+    rollout_steps_per_s: float | None = None
+    ratio_to_rollout: float | None = None
 
     def as_dict(self) -> dict:
         return asdict(self)
@@ -65,6 +71,40 @@ def env_rate(env: LabVecEnv, seconds: float) -> float:
     sync = torch.cuda.synchronize if env.device.type == "cuda" else (lambda: None)
     with one_torch_thread(str(env.device)):
         return rate(step, seconds, sync)
+
+
+def rollout_rate(model: mujoco.MjModel, num_envs: int, nstep: int, nthread: int,
+                 seconds: float) -> float:
+    """The limit of the cpu backend: env-steps/s of bare `mujoco.rollout` on `model` (the env's
+    own, sensors included), `nstep` physics steps of random controls in each actuator's range
+    per env step, on `nthread` threads (MuJoCo's pool, as the cpu backend on more than two),
+    the state copied out, no task code and no resets but of diverged envs."""
+    full = mujoco.mjtState.mjSTATE_FULLPHYSICS
+    datas = [mujoco.MjData(model) for _ in range(max(nthread, 1))]
+    models = [model] * num_envs  # skip_checks takes one per env
+    initial = np.empty(mujoco.mj_stateSize(model, full))
+    mujoco.mj_getState(model, datas[0], initial, full)
+    state = np.tile(initial, (num_envs, 1))
+    low, high = (model.actuator_ctrlrange[:, 0], model.actuator_ctrlrange[:, 1])
+    limited = model.actuator_ctrllimited.astype(bool)
+    low, high = np.where(limited, low, -1.0), np.where(limited, high, 1.0)
+    runner = rollout.Rollout(nthread=nthread if nthread > 1 else 0)
+    rng = np.random.default_rng(0)
+    states = np.empty((num_envs, nstep, state.shape[1]))
+    sensors = np.empty((num_envs, nstep, model.nsensordata))  # recorded, as the backend does
+
+    def step() -> int:
+        ctrl = rng.uniform(low, high, (num_envs, 1, model.nu)).repeat(nstep, axis=1)
+        runner.rollout(models, datas, state, ctrl, nstep=nstep, skip_checks=True, state=states,
+                       sensordata=sensors, chunk_size=-(-num_envs // len(datas)))
+        state[:] = states[:, -1]
+        state[~np.isfinite(state).all(axis=1)] = initial
+        return num_envs
+
+    try:
+        return rate(step, seconds)
+    finally:
+        runner.close()
 
 
 def train_rate(task: str, framework: str, num_envs: int, backend: str | None,
@@ -120,6 +160,10 @@ def bench(task: str, num_envs: Sequence[int], *, backend: str | None = None,
         try:
             row = BenchRow(task, env.backend, n, env_rate(env, seconds),
                            threads=env.sim.nthread)
+            if env.backend == "cpu":
+                row.rollout_steps_per_s = rollout_rate(env.sim.model, n, cfg.decimation,
+                                                       env.sim.nthread, seconds)
+                row.ratio_to_rollout = row.env_steps_per_s / row.rollout_steps_per_s
         finally:
             env.close()
         if framework is not None:
