@@ -387,15 +387,18 @@ def check_training_improves(name: str, tmp_path: Path, overrides: Sequence[str] 
                             factor: float = 1.5) -> tuple[float, float]:
     """A short cartpole run with the task's defaults for the framework (plus `overrides`, not
     the tiny ones: a 16-unit agent learns little in 25 iterations) must raise the mean episode
-    return: the mean of the last three logged values must exceed `factor` x the first.
-    Returns (first, last). Measured on 2 cores: 3-11 s per built-in framework, 4x or more."""
+    return. Returns start negative (a falling pole costs more than staying alive earns), so the
+    test is on the gain, not a ratio: the mean of the last three logged values must exceed the
+    mean of the first three by (`factor` - 1) x the first's magnitude (at least 1).
+    Returns (first, last). Measured on 2 cores: each built-in framework gains 1.4-3x that."""
     outcome = train_small(name, tmp_path, iterations, overrides, num_envs=num_envs, seed=seed)
     returns = [v for _, v in sorted(read_scalars(outcome.run.dir)[metrics.MEAN_RETURN])]
-    assert len(returns) >= 4, f"{name}: only {len(returns)} mean returns logged"
-    first, last = returns[0], float(np.mean(returns[-3:]))
-    assert last > factor * first, (
+    assert len(returns) >= 6, f"{name}: only {len(returns)} mean returns logged"
+    first, last = float(np.mean(returns[:3])), float(np.mean(returns[-3:]))
+    needed = (factor - 1) * max(abs(first), 1.0)
+    assert last - first > needed, (
         f"{name}: mean return went from {first:.2f} to {last:.2f} in {iterations} iterations "
-        f"of {num_envs} envs (needs > {factor} x)")
+        f"of {num_envs} envs (needs a gain > {needed:.2f})")
     return first, last
 
 
