@@ -11,6 +11,7 @@ import signal
 import subprocess
 import sys
 import textwrap
+import threading
 import time
 import zipfile
 from pathlib import Path
@@ -604,3 +605,31 @@ def test_a_seed_out_of_range_is_one_line(tmp_path):
     for args in (["play", "--agent", "random", "--task", "cartpole", "--seed", str(2**70)],
                  ["train", "--task", "cartpole", "--framework", "sb3", "--seed", str(2**70)]):
         assert_one_line_error(lab(*args, logs=tmp_path), "seed")
+
+
+def test_tensorboard_s_writer_thread_failing_on_a_vanished_dir_prints_no_traceback(
+        monkeypatch):
+    """Its error reaches lab through the writer's next call, which lab says in one line; the
+    thread's own print would be a traceback beside it. Any other thread's error still goes to
+    the hook that prints it."""
+    from tensorboard.summary.writer.event_file_writer import _AsyncWriterThread
+
+    from labcli.runs.session import _writer_thread_quiet
+
+    printed: list[type] = []
+    monkeypatch.setattr(threading, "excepthook", lambda args: printed.append(args.exc_type))
+
+    def failing(thread: threading.Thread, error: Exception) -> threading.Thread:
+        def run():
+            raise error
+        thread.run = run
+        return thread
+
+    with _writer_thread_quiet():
+        writer_thread = _AsyncWriterThread.__new__(_AsyncWriterThread)
+        threading.Thread.__init__(writer_thread)
+        for thread in (failing(writer_thread, FileNotFoundError(2, "No such file")),
+                       failing(threading.Thread(), ValueError("a bug"))):
+            thread.start()
+            thread.join()
+    assert printed == [ValueError]

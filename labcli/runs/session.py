@@ -8,7 +8,9 @@ import contextlib
 import math
 import shlex
 import sys
+import threading
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass
 from datetime import datetime
 from pathlib import Path
@@ -235,6 +237,26 @@ def _pipeline(fw: Framework, cfg: AgentConfig, video: VideoSettings | None,
     return [*env_stage, *fw.pipeline(cfg)]
 
 
+@contextlib.contextmanager
+def _writer_thread_quiet() -> Iterator[None]:
+    """TensorBoard writes from a thread of its own, which prints a traceback when its file's
+    directory was deleted or the disk filled up; the same error reaches lab through the
+    writer's next call, and lab says it in one line: the thread's own print is left out."""
+    original = threading.excepthook
+
+    def hook(args: threading.ExceptHookArgs) -> None:
+        if not (type(args.thread).__name__ == "_AsyncWriterThread"
+                and issubclass(args.exc_type, OSError)):
+            original(args)
+
+    threading.excepthook = hook
+    try:
+        yield
+    finally:
+        threading.excepthook = original
+
+
+@_writer_thread_quiet()
 def _run_training(fw: Framework, env: Any, cfg: AgentConfig, run: rundir.Run,
                   resume: Checkpoint | None, resume_state: dict[str, Any] | None,
                   stop: interrupt.StopRequest, device: str, pipeline: list[wrappers.Step],
