@@ -2,6 +2,10 @@
 
 from __future__ import annotations
 
+from typing import Annotated
+
+import typer
+
 from labcli.commands.common import ConfigOpt, FrameworkArg, SetOpt, TaskArg, out
 
 
@@ -10,15 +14,20 @@ def show(
     framework: FrameworkArg,
     set_: SetOpt = None,
     config_file: ConfigOpt = None,
+    backend: Annotated[str | None, typer.Option(
+        help="Show the defaults `lab train --backend` picks: cpu, or warp (GPU scale) "
+             "[warp where CUDA is available].")] = None,
 ) -> None:
     """Print the fully resolved env and agent config as YAML, fit for `lab train --config`.
 
     Example: lab config show --task cartpole --framework sb3 --set agent.n_epochs=10 > my.yaml
+    Example: lab config show --task humanoid --framework rsl_rl --backend warp
     """
     from labcli.plugins import registry
     from labcli.runs import config
+    from labcli.runs.plan import gpu_scale
 
     env_cfg, agent_cfg = config.resolve(
         registry.get_task(task), registry.get_framework(framework), config_file=config_file,
-        overrides=set_ or [])
+        overrides=set_ or [], gpu_scale=gpu_scale(backend, None))
     out().print(config.dump(env_cfg, agent_cfg), end="", highlight=False, soft_wrap=True)

@@ -194,15 +194,23 @@ def _type_name(annotation: Any) -> str:
     return getattr(annotation, "__name__", None) or str(annotation).replace("typing.", "")
 
 
+# The key, inside a task's defaults for a framework, of the settings for the GPU scale (the
+# warp backend: thousands of envs, larger mini-batches), applied over the others there.
+GPU_SCALE = "warp"
+
+
 def resolve(spec: TaskSpec, fw: FrameworkSpec, *, base: tuple[dict, dict] | None = None,
             config_file: Path | None = None, overrides: Sequence[str] = (),
             num_envs: int | None = None, max_iterations: int | None = None,
-            seed: int | None = None) -> tuple[TaskConfig, AgentConfig]:
+            seed: int | None = None, gpu_scale: bool = False) -> tuple[TaskConfig, AgentConfig]:
     """defaults ← the framework's defaults for this task ← the task's defaults for this
-    framework ← `base` (a resumed run) ← file ← --set ← the explicit flags."""
-    layers = [{"env": dict(defaults.get("env", {})), "agent": dict(defaults.get("agent", {}))}
-              for defaults in (fw.task_defaults.get(spec.name, {}),
-                               spec.framework_defaults.get(fw.name, {}))]
+    framework (with `gpu_scale`, each followed by its "warp" settings) ← `base` (a resumed run)
+    ← file ← --set ← the explicit flags."""
+    layers = []
+    for defaults in (fw.task_defaults.get(spec.name, {}), spec.framework_defaults.get(fw.name, {})):
+        for layer in (defaults, defaults.get(GPU_SCALE, {}) if gpu_scale else {}):
+            layers.append({"env": dict(layer.get("env", {})),
+                           "agent": dict(layer.get("agent", {}))})
     if base is not None:
         layers.append({"env": base[0], "agent": base[1]})
     if config_file is not None:

@@ -4,6 +4,7 @@ first line what it will do before the seconds of importing and building start.""
 
 from __future__ import annotations
 
+import importlib.util
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -50,6 +51,21 @@ class TrainPlan:
                 f"{self.resume.iteration + 1} to {self.agent_cfg.max_iterations}{changed}")
 
 
+def gpu_scale(backend: str | None, device: str | None) -> bool:
+    """Whether the run will step on the warp backend, asked or picked by default (CUDA and
+    MuJoCo Warp usable): its task defaults are the GPU-scale ones. torch is imported only where
+    MuJoCo Warp is installed and nothing was asked."""
+    if backend is not None:
+        return backend == "warp"
+    if device is not None:
+        return device.startswith("cuda")
+    if importlib.util.find_spec("mujoco_warp") is None:
+        return False
+    from labcli.envs.sim import default_backend
+
+    return default_backend() == "warp"
+
+
 def plan(task: str, framework: str, *, num_envs: int | None = None, seed: int | None = None,
          max_iterations: int | None = None, device: str | None = None,
          backend: str | None = None, run_name: str | None = None,
@@ -75,7 +91,8 @@ def plan(task: str, framework: str, *, num_envs: int | None = None, seed: int | 
                            base[1])
     env_cfg, agent_cfg = config.resolve(spec, fw, base=base, config_file=config_file,
                                         overrides=overrides, num_envs=num_envs,
-                                        max_iterations=max_iterations, seed=seed)
+                                        max_iterations=max_iterations, seed=seed,
+                                        gpu_scale=gpu_scale(backend, device))
     changes = {}
     if base is not None:
         saved_env = config.build(spec.config_class, "env", [base[0]])
