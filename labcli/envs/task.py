@@ -47,6 +47,12 @@ class Task:
             model.opt.timestep = cfg.sim_dt
         return model
 
+    @classmethod
+    def per_env_fields(cls, cfg: TaskConfig) -> tuple[str, ...]:
+        """MjModel fields (e.g. "geom_friction", "body_mass") that this task varies per env,
+        through `sim.model_field`: the sim is made with them. The default: none."""
+        return ()
+
     def apply_actions(self, actions: torch.Tensor) -> None:
         """Turn clipped actions in [-1, 1] into controls; the default scales them into ctrl."""
         torch.mul(actions, self.cfg.action_scale, out=self.sim.ctrl)

@@ -9,7 +9,7 @@ env.rewards.energy=null`) leaves that term out.
 
 from __future__ import annotations
 
-from typing import Any, ClassVar
+from typing import Any, ClassVar, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
@@ -47,9 +47,9 @@ class RangeChecked(Term):
 
 # observations ---------------------------------------------------------------------------------
 class ObsTerm(RangeChecked):
-    """An observation term: `scale` times its value, then clipped to `clip`; with the task's
-    `observation_noise` on (training; `lab play` turns it off unless asked), uniform noise in
-    (-noise, noise) is added first, as Isaac Lab's `Unoise`."""
+    """An observation term, as Isaac Lab's: its value plus uniform noise in (-noise, noise)
+    (with the task's `observation_noise` on: training; `lab play` turns it off unless asked),
+    clipped to `clip`, times `scale`."""
 
     scale: float = 1.0
     clip: Range | None = None
@@ -292,6 +292,32 @@ class PushByVelocity(EventTerm):
     impl: ClassVar[str] = "labcli.envs.mdp.events:push_by_setting_velocity"
     interval_s: Range = (10.0, 15.0)
     velocity_range: dict[str, Range] = Field(default_factory=dict)
+
+
+class ModelEvent(EventTerm):
+    """A per-env change of the physics (MuJoCo's per-env models on the cpu backend, batched
+    model fields on warp), drawn once at start-up or again at every reset of the env."""
+
+    mode: Literal["startup", "reset"] = "startup"
+    bodies: list[str] = Field(default_factory=lambda: [".*"],
+                              description="bodies whose geoms or mass it changes (patterns)")
+
+
+class RandomizeFriction(ModelEvent):
+    """Each named body's geoms' sliding friction, drawn per env and geom from `friction_range`
+    (MuJoCo combines two geoms' friction by their maximum): Isaac Lab's
+    `randomize_rigid_body_material` for MuJoCo's single coefficient."""
+
+    impl: ClassVar[str] = "labcli.envs.mdp.events:randomize_rigid_body_friction"
+    friction_range: Range = (0.8, 0.8)
+
+
+class RandomizeMass(ModelEvent):
+    """Each named body's mass plus a draw from `mass_range` (kg) per env: Isaac Lab's
+    `randomize_rigid_body_mass` with operation "add"."""
+
+    impl: ClassVar[str] = "labcli.envs.mdp.events:randomize_rigid_body_mass"
+    mass_range: Range = (0.0, 0.0)
 
 
 # actions ---------------------------------------------------------------------------------------

@@ -4,12 +4,12 @@ place so that they replay inside the CUDA-graphed step."""
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, ClassVar
 
 import torch
 
 from labcli.envs.mdp import config as c
-from labcli.envs.mdp import math
+from labcli.envs.mdp import math, names
 
 if TYPE_CHECKING:
     from labcli.envs.mdp.task import RobotTask
@@ -46,22 +46,31 @@ class reset_joints_by_offset:  # noqa: N801 - a term, named as Isaac Lab's
 
 
 class reset_root_state_uniform:  # noqa: N801
+    """Only what the ranges move is drawn and written: with Isaac Lab's empty ranges (ant,
+    humanoid) the term leaves the default pose as the reset put it, at no cost per step."""
+
     def __init__(self, task: RobotTask, cfg: c.ResetRootUniform):
         self.robot, self.sim = task.robot, task.sim
         ranges = [cfg.pose_range.get(k, (0.0, 0.0)) for k in c.POSE_KEYS]
         ranges += [cfg.velocity_range.get(k, (0.0, 0.0)) for k in c.POSE_KEYS]
         self.draw = Uniform(task, ranges)
+        self.moves = any(lo != 0.0 or hi != 0.0 for lo, hi in ranges)
+        self.turns = any(lo != 0.0 or hi != 0.0 for lo, hi in ranges[3:6])
 
     def reset(self, mask: torch.Tensor) -> None:
+        if not self.moves:
+            return
         r = self.robot
         offset, velocity = self.draw().split(6, dim=1)
         m = mask[:, None]
-        pos = r.root_pos + offset[:, :3]
-        quat = math.quat_mul(r.root_quat, math.quat_from_rpy(*offset[:, 3:].unbind(1)))
-        torch.where(m, torch.cat((pos, quat), dim=1), self.sim.qpos[:, r.root_qpos],
-                    out=self.sim.qpos[:, r.root_qpos])
+        quat = (math.quat_mul(r.root_quat, math.quat_from_rpy(*offset[:, 3:].unbind(1)))
+                if self.turns else r.root_quat)
+        pose = torch.cat((r.root_pos + offset[:, :3], quat), dim=1)
+        root_qpos = self.sim.qpos[:, r.root_qpos]
+        torch.where(m, pose, root_qpos, out=root_qpos)
         # The free joint's angular velocity is in the root's frame.
-        torch.where(m, velocity, self.sim.qvel[:, r.root_qvel], out=self.sim.qvel[:, r.root_qvel])
+        root_qvel = self.sim.qvel[:, r.root_qvel]
+        torch.where(m, velocity, root_qvel, out=root_qvel)
 
 
 class push_by_setting_velocity:  # noqa: N801
@@ -77,3 +86,74 @@ class push_by_setting_velocity:  # noqa: N801
         qvel = self.sim.qvel[:, self.robot.root_qvel]
         torch.where(due[:, None], qvel + self.push(), qvel, out=qvel)
         torch.where(due, self.interval()[:, 0], self.time_left, out=self.time_left)
+
+
+class _ModelEvent:
+    """Draws per-env values of an MjModel field for some of its rows (the geoms or bodies of
+    the named bodies) and hands them to the sim: at start-up for all envs, or at every reset
+    for the envs reset."""
+
+    field: ClassVar[str]
+
+    def __init__(self, task: RobotTask, rows: list[int], value_range: tuple[float, float],
+                 mode: str):
+        self.sim = task.sim
+        self.values = task.sim.model_field(self.field)
+        self.rows = torch.tensor(rows, dtype=torch.long, device=self.values.device)
+        self.draw = Uniform(task, [value_range] * len(rows))
+        self.everyone = torch.ones(task.num_envs, dtype=torch.bool, device=self.values.device)
+        self.base = self.column().clone()
+        if mode == "reset":
+            self.reset = self.apply
+        else:  # RobotTask runs it once, at the env's first reset
+            self.startup = lambda: self.apply(self.everyone)
+
+    def column(self) -> torch.Tensor:
+        return self.values[:, self.rows]
+
+    def apply(self, mask: torch.Tensor) -> None:
+        new = self.new_values(self.draw().to(self.values.dtype))
+        current = self.column()
+        self.write(torch.where(mask[:, None], new, current))
+        self.sim.model_changed(self.field, mask)
+
+    def new_values(self, drawn: torch.Tensor) -> torch.Tensor:
+        return drawn
+
+    def write(self, values: torch.Tensor) -> None:
+        self.values[:, self.rows] = values
+
+
+def _bodies(task: RobotTask, patterns: list[str]) -> list[int]:
+    """The named bodies, the world (the floor's body) left out."""
+    return [b for b in names.resolve(task.model, "body", patterns) if b != 0]
+
+
+def _geoms_of(task: RobotTask, bodies: list[str]) -> list[int]:
+    ids = set(_bodies(task, bodies))
+    return [g for g in range(task.model.ngeom) if int(task.model.geom_bodyid[g]) in ids]
+
+
+class randomize_rigid_body_friction(_ModelEvent):  # noqa: N801
+    field = "geom_friction"
+    fields = ("geom_friction",)
+
+    def __init__(self, task: RobotTask, cfg: c.RandomizeFriction):
+        super().__init__(task, _geoms_of(task, cfg.bodies), cfg.friction_range, cfg.mode)
+
+    def column(self) -> torch.Tensor:
+        return self.values[:, self.rows, 0]  # sliding friction
+
+    def write(self, values: torch.Tensor) -> None:
+        self.values[:, self.rows, 0] = values
+
+
+class randomize_rigid_body_mass(_ModelEvent):  # noqa: N801
+    field = "body_mass"
+    fields = ("body_mass",)
+
+    def __init__(self, task: RobotTask, cfg: c.RandomizeMass):
+        super().__init__(task, _bodies(task, cfg.bodies), cfg.mass_range, cfg.mode)
+
+    def new_values(self, drawn: torch.Tensor) -> torch.Tensor:
+        return self.base + drawn

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import importlib.util
+from collections.abc import Sequence
 
 import mujoco
 import torch
@@ -44,6 +45,16 @@ class Sim:
         """Envs whose state diverged (non-finite or absurd velocities)."""
         return ~(self.qvel.abs() < UNSTABLE_VELOCITY).all(dim=1)
 
+    def model_field(self, name: str) -> torch.Tensor:
+        """`[num_envs, ...]` values of an MjModel field that differs per env (friction, mass),
+        one of the `per_env_fields` the sim was made with. Write into it in place, then call
+        `model_changed(name, mask)` for the envs whose values changed."""
+        raise LabError(f"model field '{name}' was not made per env",
+                       "name it in the task's per_env_fields")
+
+    def model_changed(self, name: str, mask: torch.Tensor) -> None:
+        """Make the envs in `mask` step with their new `model_field(name)` values."""
+
     def pop_overflows(self) -> dict[str, float]:
         """Env steps, since the last call, in which a fixed-size buffer overflowed, by buffer
         name (MuJoCo Warp's contact and constraint buffers; such envs count as unstable)."""
@@ -67,16 +78,16 @@ def _warp_installed() -> bool:
 
 def make_sim(backend: str, model: mujoco.MjModel, num_envs: int, device: str,
              nthread: int | None = None, nconmax: int | None = None,
-             njmax: int | None = None) -> Sim:
+             njmax: int | None = None, per_env_fields: Sequence[str] = ()) -> Sim:
     if backend == "cpu":
         from labcli.envs.sim.cpu import CpuSim
 
         if torch.device(device).type != "cpu":
             raise LabError(f"the cpu backend keeps its state on the CPU, not on '{device}'",
                            "use --device cpu, or --backend warp for a GPU")
-        return CpuSim(model, num_envs, nthread)
+        return CpuSim(model, num_envs, nthread, per_env_fields)
     if backend == "warp":
-        return _make_warp_sim(model, num_envs, device, nconmax, njmax)
+        return _make_warp_sim(model, num_envs, device, nconmax, njmax, per_env_fields)
     raise LabError(f"unknown backend '{backend}'", f"choose one of: {', '.join(BACKENDS)}")
 
 
@@ -84,7 +95,7 @@ WARP_INSTALL_HINT = 'pip install -e ".[warp]" on a machine with an NVIDIA GPU, o
 
 
 def _make_warp_sim(model: mujoco.MjModel, num_envs: int, device: str, nconmax: int | None,
-                   njmax: int | None) -> Sim:
+                   njmax: int | None, per_env_fields: Sequence[str]) -> Sim:
     """MuJoCo Warp on CUDA; warp is imported here only, so `lab` runs without it."""
     if torch.device(device).type != "cuda":
         raise LabError(f"the warp backend keeps its state on a CUDA device, not on '{device}'",
@@ -97,4 +108,4 @@ def _make_warp_sim(model: mujoco.MjModel, num_envs: int, device: str, nconmax: i
     except ImportError as exc:
         raise LabError(f"the warp backend needs MuJoCo Warp, which is not installed ({exc})",
                        WARP_INSTALL_HINT) from exc
-    return WarpSim(model, num_envs, device, nconmax, njmax)
+    return WarpSim(model, num_envs, device, nconmax, njmax, per_env_fields)

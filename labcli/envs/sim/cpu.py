@@ -8,7 +8,7 @@ import os
 import threading
 import time
 import weakref
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 
 import mujoco
 import numpy as np
@@ -102,7 +102,8 @@ class CpuSim(Sim):
     thread adds a hop of its own, and one caller's share matters less (16 cores: the pool alone
     was 3–15% faster at 1,024 and 4,096 envs; at 4 and 8 threads mixed, 0.85–1.23 of it)."""
 
-    def __init__(self, model: mujoco.MjModel, num_envs: int, nthread: int | None = None):
+    def __init__(self, model: mujoco.MjModel, num_envs: int, nthread: int | None = None,
+                 per_env_fields: Sequence[str] = ()):
         # MuJoCo's own reset of a diverged state would hide it from `Sim.unstable()`: lab resets
         # such envs itself, and counts them. On a copy: the caller's model may also go to MuJoCo
         # Warp, which has no such reset and refuses the flag.
@@ -112,7 +113,12 @@ class CpuSim(Sim):
         self.num_envs = num_envs
         self.device = torch.device("cpu")
         self.nthread = min(nthread or _cores(), num_envs)
-        self._models = [model] * num_envs
+        # One MjModel per env where a field differs per env (rollout takes one per env).
+        self._models = ([copy.copy(model) for _ in range(num_envs)] if per_env_fields
+                        else [model] * num_envs)
+        self._fields = {name: torch.from_numpy(np.stack([getattr(m, name) for m in
+                                                         self._models[:1]] * num_envs))
+                        for name in per_env_fields}
         pool = self.nthread if self.nthread > 2 else 0  # 0: on the calling thread
         self._mine = rollout.Rollout(nthread=pool)
         self._my_data = [mujoco.MjData(model) for _ in range(max(pool, 1))]
@@ -195,6 +201,16 @@ class CpuSim(Sim):
         torch.where(mask[:, None], self._default_t, self._state_t, out=self._state_t)
         if self.model.nsensordata:
             self.sensordata.masked_fill_(mask[:, None], 0.0)
+
+    def model_field(self, name: str) -> torch.Tensor:
+        if name not in self._fields:
+            return super().model_field(name)
+        return self._fields[name]
+
+    def model_changed(self, name: str, mask: torch.Tensor) -> None:
+        values = self._fields[name].numpy()
+        for env in mask.nonzero()[:, 0].tolist():  # on the CPU, a host sync is free
+            getattr(self._models[env], name)[:] = values[env]
 
     def close(self) -> None:
         if self._stop_worker is not None:

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import os
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 
 import mujoco
@@ -80,7 +80,8 @@ def compiling_notice(cache_dir: str) -> Iterator[None]:
 
 class WarpSim(Sim):
     def __init__(self, model: mujoco.MjModel, num_envs: int, device: str = "cuda",
-                 nconmax: int | None = None, njmax: int | None = None):
+                 nconmax: int | None = None, njmax: int | None = None,
+                 per_env_fields: Sequence[str] = ()):
         self.model = model
         self.num_envs = num_envs
         cache_dir = init_warp()
@@ -92,7 +93,10 @@ class WarpSim(Sim):
         data = mujoco.MjData(model)
         mujoco.mj_forward(model, data)
         with wp.ScopedDevice(self._wp_device):
-            self._m = mjw.put_model(model)
+            # Fields that differ per env get a leading dimension of num_envs (MuJoCo Warp's
+            # batched model fields), before any kernel is compiled or graph captured.
+            self._m = mjw.put_model(model, batch_sizes={name: num_envs
+                                                        for name in per_env_fields})
             may_collide = self._m.nxn_geom_pair_filtered.shape[0] > 0
             capacity = constraint_capacity(model, may_collide)
             # The task's sizes win (Isaac Lab's Newton configs give them per task): MuJoCo
@@ -130,6 +134,12 @@ class WarpSim(Sim):
             self._mask.zero_()
             self._graphs[RESET] = self._capture(self._reset_masked)
         wp.synchronize_device(self._wp_device)
+
+    def model_field(self, name: str) -> torch.Tensor:
+        field = wp.to_torch(getattr(self._m, name))
+        if field.shape[0] != self.num_envs:
+            return super().model_field(name)
+        return field
 
     def step(self, nstep: int) -> None:
         self._run(nstep, lambda: self._substeps(nstep))
