@@ -9,7 +9,7 @@ import math
 import mujoco
 import pytest
 import torch
-from lab_locomotion.config import AntConfig, AntObservations, AntTerminations
+from lab_locomotion.config import AntConfig, AntObservations, AntTerminations, LocomotionEvents
 from lab_locomotion.plugin import HERE
 from oneline import assert_one_line_error
 from typer.testing import CliRunner
@@ -25,6 +25,7 @@ from labcli.gym import make_env
 
 DT = 2 / 120  # ant and humanoid: 120 Hz physics, decimation 2
 ANT_MODEL = HERE / "ant.xml"
+HAVE_WARP = all(importlib.util.find_spec(m) for m in ("warp", "mujoco_warp"))
 
 
 def lab(*args: str, logs):
@@ -206,8 +207,6 @@ def test_range_low_above_high_is_refused_by_the_config():
         c.ResetRootUniform(pose_range={"height": (0.0, 1.0)})
 
 
-HAVE_WARP = all(importlib.util.find_spec(m) for m in ("warp", "mujoco_warp"))
-
 
 @pytest.mark.gpu
 @pytest.mark.skipif(not (HAVE_WARP and torch.cuda.is_available()),
@@ -215,13 +214,20 @@ HAVE_WARP = all(importlib.util.find_spec(m) for m in ("warp", "mujoco_warp"))
 @pytest.mark.parametrize("task", ["ant", "humanoid"])
 def test_both_backends_agree_on_a_short_rollout(task):
     """From the same state, with the same actions, 10 env steps on MuJoCo's C engine (float64)
-    and on MuJoCo Warp (float32, in a CUDA graph) give the same observations and rewards."""
-    cpu = make_env(task, num_envs=8, seed=0, overrides=["env.observation_noise=false"])
+    and on MuJoCo Warp (float32, in a CUDA graph) give the same observations and rewards. In
+    the air (1 m up): contacts make the two diverge within a few steps (float32 against
+    float64, and MuJoCo Warp's solver settings); the feet carrying the weight on both backends
+    is the contact test (test_per_env_mass_...)."""
+    cpu = make_env(task, num_envs=8, backend="cpu", device="cpu", seed=0,
+                   overrides=["env.observation_noise=false"])
     gpu = make_env(task, num_envs=8, backend="warp", device="cuda", seed=0,
                    overrides=["env.observation_noise=false"])
     cpu.reset(), gpu.reset()
+    lifted = cpu.get_state()
+    lifted["qpos"][:, 2] += 1.0  # the root's height: its free joint comes first in qpos
+    cpu.set_state(lifted)
     state = {k: (v.to("cuda", torch.float32) if v.is_floating_point() else v.to("cuda"))
-             for k, v in cpu.get_state().items() if k != "generator"}
+             for k, v in lifted.items() if k != "generator"}
     state["generator"] = gpu.get_state()["generator"]
     gpu.set_state(state)
     actions = torch.rand(10, 8, len(cpu.action_names), generator=torch.Generator().manual_seed(1))
@@ -233,3 +239,59 @@ def test_both_backends_agree_on_a_short_rollout(task):
         worst_reward = max(worst_reward, (r_gpu.cpu().double() - r_cpu).abs().max().item())
     cpu.close(), gpu.close()
     assert worst_obs < 0.05 and worst_reward < 0.05, (worst_obs, worst_reward)
+
+
+class _HeavyEvents(LocomotionEvents):
+    heavier: c.RandomizeMass | None = c.RandomizeMass(bodies=["torso"], mass_range=(1.0, 3.0))
+    grip: c.RandomizeFriction | None = c.RandomizeFriction(friction_range=(0.4, 1.2),
+                                                           mode="reset")
+
+
+class _HeavyAnt(_AntWithContacts):
+    events: _HeavyEvents = _HeavyEvents(reset_base=None, reset_robot_joints=None)
+
+
+BACKENDS = ["cpu", pytest.param("warp", marks=[pytest.mark.gpu, pytest.mark.skipif(
+    not (HAVE_WARP and torch.cuda.is_available()), reason="needs a CUDA GPU and MuJoCo Warp"
+)])]
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_per_env_mass_and_friction_change_the_physics_of_each_env(backend):
+    spec = TaskSpec(name="ant", task=RobotTask, config=_HeavyAnt, model=ANT_MODEL)
+    device = "cuda" if backend == "warp" else "cpu"
+    env = LabVecEnv(spec, _HeavyAnt(num_envs=3), backend=backend, device=device, seed=0)
+    env.reset()
+    base = float(mujoco.MjModel.from_xml_path(str(ANT_MODEL)).body("torso").mass[0])
+    added = env.sim.model_field("body_mass")[:, 1] - base
+    assert ((added >= 1.0) & (added <= 3.0)).all() and len(set(added.tolist())) == 3
+    friction = env.sim.model_field("geom_friction")[:, :, 0]
+    robot = friction[:, 1:]  # geom 0 is the floor's, left alone
+    assert ((robot >= 0.4) & (robot <= 1.2)).all() and (friction[:, 0] == 1.0).all()
+    friction[:] = 1.0  # the floor's: the weight below needs the ant settled on all its feet
+    env.sim.model_changed("geom_friction", torch.ones(3, dtype=torch.bool, device=device))
+    feet = torch.zeros(3, dtype=torch.float64)
+    for step in range(90):
+        env.step(torch.zeros(3, 8, device=device))
+        if step >= 60:  # settled: the mean of the last 0.5 s
+            feet += obs(env, "feet_contact").view(3, 4, 3)[:, :, 2].sum(dim=1).abs().cpu() / 30
+    # Each env's own model steps it: its feet carry its own weight.
+    weight = (float(env.sim.model.body_subtreemass[1]) + added.cpu().double()) * 9.81
+    assert feet.tolist() == pytest.approx(weight.tolist(), rel=0.02)
+    env.close()
+
+
+@pytest.mark.gpu
+@pytest.mark.skipif(not (HAVE_WARP and torch.cuda.is_available()),
+                    reason='needs a CUDA GPU and MuJoCo Warp (pip install -e ".[warp]")')
+def test_a_contact_buffer_overflow_is_counted_by_name_and_its_envs_reset():
+    env = make_env("ant", num_envs=8, backend="warp", device="cuda", seed=0,
+                   overrides=["env.nconmax=1", "env.njmax=8"])
+    env.reset()
+    for _ in range(30):  # standing on four feet: 4 contacts, 16+ rows per env
+        env.step(torch.zeros(8, 8, device="cuda"))
+    stats = env.pop_stats()
+    env.close()
+    overflows = {k: v for k, v in stats.items() if k.startswith("sim/overflow/")}
+    assert overflows and all(v > 0 for v in overflows.values()), stats
+    assert stats.get("sim/instabilities", 0) > 0

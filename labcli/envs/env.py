@@ -56,7 +56,7 @@ class LabVecEnv(gym.vector.VectorEnv):
         self.max_episode_length = math.ceil(round(steps, 9))
         self.backend = backend or default_backend(device)
         self.sim = make_sim(self.backend, model, cfg.num_envs, device, cfg.threads, cfg.nconmax,
-                            cfg.njmax)
+                            cfg.njmax, spec.task_class.per_env_fields(cfg))
         self.task = spec.task_class(cfg, self.sim)
         self.num_envs = cfg.num_envs
         self.device = self.sim.device
@@ -105,6 +105,7 @@ class LabVecEnv(gym.vector.VectorEnv):
         self._all = torch.ones(n, dtype=torch.bool, device=dev)
         # NEXT_STEP: the envs that ended on the last step, to be reset on this one.
         self._pending = torch.zeros(n, dtype=torch.bool, device=dev)
+        self._skip_idle_resets = dev.type == "cpu"
         self._renderer: SceneRenderer | None = None
         self._resume_state: dict[str, torch.Tensor] | None = None
         # On a GPU the step is host-bound when eager: it replays as one CUDA graph instead.
@@ -200,10 +201,12 @@ class LabVecEnv(gym.vector.VectorEnv):
         if next_step:
             self._reset_envs(self._pending)
             self._pending.copy_(done)
-        else:
-            info["final_obs"], info["_final_obs"] = self.observations(), done
-            self._reset_envs(done)
-        return self.observations(), reward, terminated_any, truncated, info
+            return self.observations(), reward, terminated_any, truncated, info
+        final_obs = info["final_obs"] = self.observations()
+        info["_final_obs"] = done
+        # With no env reset the state is unchanged: a copy, not the task's terms again.
+        obs = self.observations() if self._reset_envs(done) else final_obs.clone()
+        return obs, reward, terminated_any, truncated, info
 
     # looking at env 0 ------------------------------------------------------------------------
     def render(self) -> np.ndarray:
@@ -335,7 +338,13 @@ class LabVecEnv(gym.vector.VectorEnv):
         return {**stats, **overflows}
 
     # internals -------------------------------------------------------------------------------
-    def _reset_envs(self, mask: torch.Tensor) -> None:
+    def _reset_envs(self, mask: torch.Tensor) -> bool:
+        """Reset the envs in `mask`; False where it knows that none was (and did nothing).
+        On the CPU, asking whether any env ended is free, and most steps none does: the reset
+        path (the task's draws, masked writes) is skipped then. On a GPU the question would
+        wait for the device and break the step's CUDA graph: the masked reset always runs."""
+        if self._skip_idle_resets and not mask.any():
+            return False
         self.sim.reset_to_defaults(mask)
         self.task.reset(mask, self.generator)
         self.task.update()
@@ -343,6 +352,7 @@ class LabVecEnv(gym.vector.VectorEnv):
         self._episode_sums.masked_fill_(mask, 0.0)
         # Last: `mask` may be `_pending` itself.
         self._pending.logical_and_(mask.logical_not())
+        return True
 
     def _reward(self, unstable: torch.Tensor) -> torch.Tensor:
         """The weighted terms' sum; each weighted term also adds to its episode's total."""

@@ -4,28 +4,22 @@ from __future__ import annotations
 
 import torch
 
-
-def quat_rotate(q: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
-    """`v` `[n, 3]` rotated by the unit quaternions `q` `[n, 4]` (body frame to world)."""
-    w, u = q[:, :1], q[:, 1:]
-    t = 2.0 * torch.linalg.cross(u, v)
-    return v + w * t + torch.linalg.cross(u, t)
-
-
-def quat_rotate_inverse(q: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
-    """`v` `[n, 3]` rotated by the inverse of `q` (world frame to body)."""
-    w, u = q[:, :1], q[:, 1:]
-    t = 2.0 * torch.linalg.cross(u, v)
-    return v - w * t + torch.linalg.cross(u, t)
-
-
-def roll_pitch_yaw(q: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """Extrinsic x-y-z (roll, pitch, yaw) angles of `q`, each `[n]`, roll and yaw in [-pi, pi]."""
-    w, x, y, z = q.unbind(1)
-    roll = torch.atan2(2.0 * (w * x + y * z), 1.0 - 2.0 * (x * x + y * y))
-    pitch = torch.asin((2.0 * (w * y - z * x)).clamp(-1.0, 1.0))
-    yaw = torch.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
-    return roll, pitch, yaw
+# R (3x3, row-major) of a unit quaternion q = (w, x, y, z) as a linear map of its outer product
+# q q^T (4x4, row-major): `(q q^T).view(n, 16) @ QUAT_OUTER_TO_ROTATION` is R.view(n, 9).
+_W, _X, _Y, _Z = range(4)
+_R_TERMS = (
+    {(_W, _W): 1, (_X, _X): 1, (_Y, _Y): -1, (_Z, _Z): -1},  # R00 = ww + xx - yy - zz
+    {(_X, _Y): 1, (_Y, _X): 1, (_W, _Z): -1, (_Z, _W): -1},  # R01 = 2 (xy - wz)
+    {(_X, _Z): 1, (_Z, _X): 1, (_W, _Y): 1, (_Y, _W): 1},    # R02 = 2 (xz + wy)
+    {(_X, _Y): 1, (_Y, _X): 1, (_W, _Z): 1, (_Z, _W): 1},    # R10 = 2 (xy + wz)
+    {(_W, _W): 1, (_X, _X): -1, (_Y, _Y): 1, (_Z, _Z): -1},  # R11
+    {(_Y, _Z): 1, (_Z, _Y): 1, (_W, _X): -1, (_X, _W): -1},  # R12 = 2 (yz - wx)
+    {(_X, _Z): 1, (_Z, _X): 1, (_W, _Y): -1, (_Y, _W): -1},  # R20 = 2 (xz - wy)
+    {(_Y, _Z): 1, (_Z, _Y): 1, (_W, _X): 1, (_X, _W): 1},    # R21 = 2 (yz + wx)
+    {(_W, _W): 1, (_X, _X): -1, (_Y, _Y): -1, (_Z, _Z): 1},  # R22
+)
+QUAT_OUTER_TO_ROTATION = [[float(terms.get((i // 4, i % 4), 0)) for terms in _R_TERMS]
+                          for i in range(16)]
 
 
 def wrap_to_pi(angle: torch.Tensor) -> torch.Tensor:

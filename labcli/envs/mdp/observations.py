@@ -32,8 +32,7 @@ def projected_gravity(task: RobotTask, cfg: c.ProjectedGravity) -> torch.Tensor:
 
 
 def base_yaw_roll(task: RobotTask, cfg: c.BaseYawRoll) -> torch.Tensor:
-    roll, _, yaw = math.roll_pitch_yaw(task.robot.root_quat)
-    return torch.stack((yaw, roll), dim=1)
+    return torch.stack((task.robot.yaw, task.robot.roll), dim=1)
 
 
 def base_up_proj(task: RobotTask, cfg: c.UpProj) -> torch.Tensor:
@@ -41,10 +40,14 @@ def base_up_proj(task: RobotTask, cfg: c.UpProj) -> torch.Tensor:
 
 
 def direction_to_target(task: RobotTask, target: tuple[float, float, float]) -> torch.Tensor:
-    """The horizontal unit vector from the root toward `target`, `[n, 3]`."""
-    to_target = task.constant(target) - task.robot.root_pos
-    to_target[:, 2] = 0.0
-    return torch.nn.functional.normalize(to_target, dim=1)
+    """The horizontal unit vector from the root toward `target`, `[n, 3]` (once per state)."""
+
+    def compute() -> torch.Tensor:
+        to_target = task.constant(target) - task.robot.root_pos
+        to_target[:, 2] = 0.0
+        return torch.nn.functional.normalize(to_target, dim=1)
+
+    return task.robot.per_state(("direction_to_target", target), compute)
 
 
 def base_heading_proj(task: RobotTask, cfg: c.HeadingProj) -> torch.Tensor:
@@ -55,8 +58,7 @@ def base_heading_proj(task: RobotTask, cfg: c.HeadingProj) -> torch.Tensor:
 
 def base_angle_to_target(task: RobotTask, cfg: c.AngleToTarget) -> torch.Tensor:
     to_target = task.constant(cfg.target) - task.robot.root_pos
-    _, _, yaw = math.roll_pitch_yaw(task.robot.root_quat)
-    angle = torch.atan2(to_target[:, 1], to_target[:, 0]) - yaw
+    angle = torch.atan2(to_target[:, 1], to_target[:, 0]) - task.robot.yaw
     return math.wrap_to_pi(angle)[:, None]
 
 
@@ -65,8 +67,7 @@ def joint_pos_rel(task: RobotTask, cfg: c.JointPos) -> torch.Tensor:
 
 
 def joint_pos_limit_normalized(task: RobotTask, cfg: c.JointPosNormalized) -> torch.Tensor:
-    r = task.robot
-    return (2.0 * r.joint_pos - r.joint_upper - r.joint_lower) / (r.joint_upper - r.joint_lower)
+    return task.robot.joint_pos_normalized()
 
 
 def joint_vel_rel(task: RobotTask, cfg: c.JointVel) -> torch.Tensor:

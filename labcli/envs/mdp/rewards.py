@@ -63,8 +63,7 @@ def power_consumption(task: RobotTask, cfg: c.Energy) -> torch.Tensor:
 
 def joint_pos_limits_penalty_ratio(task: RobotTask, cfg: c.JointPosLimits) -> torch.Tensor:
     r = task.robot
-    scaled = ((2.0 * r.joint_pos - r.joint_upper - r.joint_lower)
-              / (r.joint_upper - r.joint_lower)).abs()
+    scaled = r.joint_pos_normalized().abs()
     violation = (scaled - cfg.threshold) / (1.0 - cfg.threshold) * r.gear_ratio_scaled
     return (violation * (scaled > cfg.threshold)).sum(dim=1)
 

@@ -68,6 +68,7 @@ class Robot:
         # An unlimited joint's "limits" are wide enough that normalizing leaves it near 0.
         lower[~torch.as_tensor(limited)], upper[~torch.as_tensor(limited)] = -1e3, 1e3
         self.joint_lower, self.joint_upper = row(lower), row(upper)
+        self._joint_range = self.joint_upper - self.joint_lower
         # The default pose: a keyframe (Isaac Lab's init_state), else the MJCF's qpos0. Not by
         # overwriting qpos0, which is also the reference of hinge angles in MuJoCo's kinematics.
         home = (model.key_qpos[names.resolve_one(model, "key", default_pose)]
@@ -81,11 +82,17 @@ class Robot:
         self.gear_ratio_scaled = row(gear / gear.max())
 
         n = sim.num_envs
+        # Derived once per state (update()), from the root's rotation matrix R (world from
+        # body): its columns and rows are the axes and gravity, its entries the angles.
+        self.rotation = torch.empty(n, 3, 3, dtype=dtype, device=dev)
+        self._qq = torch.empty(n, 4, 4, dtype=dtype, device=dev)
+        self._qq_to_r = torch.as_tensor(math.QUAT_OUTER_TO_ROTATION, dtype=dtype, device=dev)
         self.root_lin_vel_b = torch.empty(n, 3, dtype=dtype, device=dev)
         self.projected_gravity_b = torch.empty(n, 3, dtype=dtype, device=dev)
-        self.forward_w = torch.empty(n, 3, dtype=dtype, device=dev)  # the root's x axis
-        self._down = torch.tensor([0.0, 0.0, -1.0], dtype=dtype, device=dev).expand(n, 3)
-        self._x_axis = torch.tensor([1.0, 0.0, 0.0], dtype=dtype, device=dev).expand(n, 3)
+        self.forward_w = self.rotation[:, :, 0]  # the root's x axis in the world: a view of R
+        self.roll, self.pitch, self.yaw = (torch.empty(n, dtype=dtype, device=dev)
+                                           for _ in range(3))
+        self._per_state: dict[object, torch.Tensor] = {}
         self.update()
 
     @staticmethod
@@ -108,10 +115,30 @@ class Robot:
             torch.index_select(self.sim.qpos, 1, self._qidx, out=self.joint_pos)
         if self._didx is not None:
             torch.index_select(self.sim.qvel, 1, self._didx, out=self.joint_vel)
-        q = self.root_quat
-        self.root_lin_vel_b.copy_(math.quat_rotate_inverse(q, self.root_lin_vel_w))
-        self.projected_gravity_b.copy_(math.quat_rotate_inverse(q, self._down))
-        self.forward_w.copy_(math.quat_rotate(q, self._x_axis))
+        q, r = self.root_quat, self.rotation
+        n = q.shape[0]
+        torch.mul(q[:, :, None], q[:, None, :], out=self._qq)
+        torch.matmul(self._qq.view(n, 16), self._qq_to_r, out=r.view(n, 9))
+        # R^T v as v^T R: one batched product.
+        torch.matmul(self.root_lin_vel_w[:, None, :], r, out=self.root_lin_vel_b[:, None, :])
+        torch.neg(r[:, 2, :], out=self.projected_gravity_b)  # R^T (0, 0, -1)
+        torch.atan2(r[:, 2, 1], r[:, 2, 2], out=self.roll)
+        torch.asin(r[:, 2, 0].clamp(-1.0, 1.0), out=self.pitch).neg_()
+        torch.atan2(r[:, 1, 0], r[:, 0, 0], out=self.yaw)
+        self._per_state.clear()
+
+    def joint_pos_normalized(self) -> torch.Tensor:
+        """Joint positions mapped from their limits to [-1, 1] (once per state)."""
+        return self.per_state("joint_pos_normalized", lambda: (
+            (2.0 * self.joint_pos - self.joint_upper - self.joint_lower) / self._joint_range))
+
+    def per_state(self, key: object, compute):
+        """`compute()`, once per state: terms that share a derived value (the direction to a
+        target) compute it once until the state changes."""
+        value = self._per_state.get(key)
+        if value is None:
+            value = self._per_state[key] = compute()
+        return value
 
     def reset_to_default_pose(self, mask: torch.Tensor) -> None:
         """The sim resets envs to qpos0; this puts the envs in `mask` at the default pose."""

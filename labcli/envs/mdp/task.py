@@ -80,6 +80,11 @@ class RobotTask(Task):
             model.opt.timestep = cfg.sim_dt
         return model
 
+    @classmethod
+    def per_env_fields(cls, cfg: RobotTaskConfig) -> tuple[str, ...]:  # type: ignore[override]
+        return tuple(sorted({field for _, term in cfg.events.terms()
+                             for field in getattr(impl_of(term), "fields", ())}))
+
     def __init__(self, cfg: RobotTaskConfig, sim: Sim):
         super().__init__(cfg, sim)
         self.model = sim.model
@@ -105,16 +110,19 @@ class RobotTask(Task):
         every = [*self._obs, *self._rewards, *self._terminations, *self._events,
                  *([self._success] if self._success else [])]
         self._pre_physics = [b.pre_physics for b in every if b.pre_physics is not None]
+        # Start-up events (per-env physics) run once, at the env's first reset.
+        self._startups = [b.compute.startup for b in self._events
+                          if hasattr(b.compute, "startup")]
         # Events set the new state first; the other terms then remember it.
         self._event_resets = [b.reset for b in self._events if b.reset is not None]
         self._term_resets = [b.reset for b in every
                              if b.reset is not None and b not in self._events]
-        self._noise_on = cfg.observation_noise
-        self._obs_post = [self._post(b) for b in self._obs]
-        self.observation_names = [name for b in self._obs for name in self._names(b)]
-        if not self.observation_names:
+        if not self._obs:
             raise LabError("the task's config lists no observation terms",
                            "give env.observations at least one term")
+        widths = [len(self._names(b)) for b in self._obs]
+        self.observation_names = [name for b in self._obs for name in self._names(b)]
+        self._post = ObservationPost(self, [b.cfg for b in self._obs], widths)
 
     # the env's calls ---------------------------------------------------------------------------
     def apply_actions(self, actions: torch.Tensor) -> None:
@@ -136,8 +144,8 @@ class RobotTask(Task):
         self.robot.update()
 
     def observations(self) -> torch.Tensor:
-        return torch.cat([post(b.compute()) for b, post in zip(self._obs, self._obs_post,
-                                                                strict=True)], dim=1)
+        return self._post(torch.cat([b.compute() for b in self._obs], dim=1,
+                                    out=self._post.raw))
 
     def reward_terms(self) -> dict[str, torch.Tensor]:
         return {b.name: b.compute() for b in self._rewards}
@@ -149,9 +157,12 @@ class RobotTask(Task):
         self.action.masked_fill_(mask[:, None], 0.0)
         self.previous_action.masked_fill_(mask[:, None], 0.0)
         self.robot.reset_to_default_pose(mask)
+        while self._startups:
+            self._startups.pop(0)()
         for hook in self._event_resets:
             hook(mask)
-        self.robot.update()
+        # Terms' resets read the state's own views (root_pos...): the derived values are
+        # recomputed once, by the env's update() that follows every reset.
         for hook in self._term_resets:
             hook(mask)
 
@@ -172,24 +183,6 @@ class RobotTask(Task):
                 values, dtype=self.sim.qpos.dtype, device=self.sim.qpos.device)
         return made
 
-    def _post(self, built: Built) -> Callable[[torch.Tensor], torch.Tensor]:
-        cfg = built.cfg
-        noise = cfg.noise if self._noise_on else 0.0
-        scale, clip = cfg.scale, cfg.clip
-
-        def post(value: torch.Tensor) -> torch.Tensor:
-            if noise:
-                value = value + (torch.rand(value.shape, generator=self.generator,
-                                            device=value.device, dtype=value.dtype)
-                                 * (2 * noise) - noise)
-            if scale != 1.0:
-                value = value * scale
-            if clip is not None:
-                value = value.clamp(clip[0], clip[1])
-            return value
-
-        return post
-
     def _names(self, built: Built) -> list[str]:
         width = built.compute().shape[1]
         if built.names is not None:
@@ -201,3 +194,37 @@ class RobotTask(Task):
         if width == 3:
             return [f"{built.name}.{axis}" for axis in AXES]
         return [f"{built.name}[{i}]" for i in range(width)]
+
+
+class ObservationPost:
+    """Every term's noise, scale and clip applied to the concatenated observations at once, as
+    per-column vectors: a handful of ops per step however many terms there are."""
+
+    def __init__(self, task: RobotTask, terms: list[Any], widths: list[int]):
+        def column(values: list[float]) -> torch.Tensor:
+            per_column = [v for v, w in zip(values, widths, strict=True) for _ in range(w)]
+            return task.constant(per_column).expand(task.num_envs, len(per_column)).contiguous()
+
+        self.task = task
+        self.raw = torch.empty(task.num_envs, sum(widths), dtype=task.ones.dtype,
+                               device=task.ones.device)
+        noise = [t.noise if task.cfg.observation_noise else 0.0 for t in terms]
+        self.noise = column(noise) if any(noise) else None
+        self.draw = torch.empty_like(self.raw)
+        scale = [t.scale for t in terms]
+        self.scale = column(scale) if any(v != 1.0 for v in scale) else None
+        inf = float("inf")
+        clips = [t.clip or (-inf, inf) for t in terms]
+        self.clip = ((column([c[0] for c in clips]), column([c[1] for c in clips]))
+                     if any(t.clip for t in terms) else None)
+
+    def __call__(self, obs: torch.Tensor) -> torch.Tensor:
+        if self.noise is not None:  # uniform in (-noise, noise), Isaac Lab's Unoise
+            torch.rand(obs.shape, generator=self.task.generator, out=self.draw)
+            obs.add_(self.draw.mul_(2.0).sub_(1.0).mul_(self.noise))
+        if self.clip is not None:  # Isaac Lab's order: noise, clip, scale
+            torch.maximum(obs, self.clip[0], out=obs)
+            torch.minimum(obs, self.clip[1], out=obs)
+        if self.scale is not None:
+            obs.mul_(self.scale)
+        return obs
