@@ -46,23 +46,18 @@ def _defaults(num_envs: int, max_iterations: int) -> dict:
     return defaults
 
 
+SUCCESS = "8 m or more toward the target by the 16 s time-out"
+
+
+def _spec(name: str, config: str, description: str, max_iterations: int) -> TaskSpec:
+    return TaskSpec(name=name, task=TASK, config=f"lab_locomotion.config:{config}",
+                    model=HERE / f"{name}.xml", description=description, success=SUCCESS,
+                    framework_defaults=_defaults(num_envs=256, max_iterations=max_iterations))
+
+
 @hookimpl
 def register_tasks(register):
-    register(TaskSpec(
-        name="ant",
-        task=TASK,
-        config="lab_locomotion.config:AntConfig",
-        model=HERE / "ant.xml",
-        description="Isaac Lab's Ant: a four-legged ant runs toward a target 1 km ahead",
-        success="8 m or more toward the target by the 16 s time-out",
-        framework_defaults=_defaults(num_envs=256, max_iterations=150),
-    ))
-    register(TaskSpec(
-        name="humanoid",
-        task=TASK,
-        config="lab_locomotion.config:HumanoidConfig",
-        model=HERE / "humanoid.xml",
-        description="Isaac Lab's Humanoid: a 17-joint humanoid runs toward a target 1 km ahead",
-        success="8 m or more toward the target by the 16 s time-out",
-        framework_defaults=_defaults(num_envs=256, max_iterations=1000),
-    ))
+    register(_spec("ant", "AntConfig", "Isaac Lab's Ant: a four-legged ant runs toward a "
+                   "target 1 km ahead", max_iterations=150))
+    register(_spec("humanoid", "HumanoidConfig", "Isaac Lab's Humanoid: a 17-joint humanoid "
+                   "runs toward a target 1 km ahead", max_iterations=1000))
