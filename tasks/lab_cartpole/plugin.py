@@ -32,11 +32,12 @@ def register_tasks(register):
                 "use_clipped_value_loss": False}},
             "skrl": {"env": {"num_envs": 128}, "agent": {"max_iterations": 80, "rollouts": 32,
                                                          "mini_batches": 16, "desired_kl": 0.005}},
-            # Isaac Lab's rl_games cartpole settings (reward scale 0.1, horizon 32), with a
-            # tighter KL target: at its 0.008 the adaptive learning rate hit rl_games' cap of
-            # 1e-2 and seed 2 ended at 69% success in `lab play`; at 0.003 seeds 0-2 gave 96-98%.
+            # Isaac Lab's rl_games cartpole settings (horizon 32), with a tighter KL target and
+            # a smaller reward scale for Isaac Lab's reward (returns of ~250 a 5 s episode):
+            # deterministic play of seeds 0-2 gave 98 / 99 / 94% (at scale 0.1: 92% for seed 0;
+            # at a KL target of 0.008 the adaptive learning rate hit rl_games' cap of 1e-2).
             "rl_games": {"env": {"num_envs": 128}, "agent": {
-                "max_iterations": 150, "horizon_length": 32, "reward_scale": 0.1,
+                "max_iterations": 150, "horizon_length": 32, "reward_scale": 0.01,
                 "kl_threshold": 0.003}},
         },
     ))
