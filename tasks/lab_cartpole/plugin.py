@@ -30,7 +30,7 @@ def register_tasks(register):
                 "max_iterations": 100, "num_steps_per_env": 32, "num_learning_epochs": 8,
                 "num_mini_batches": 8, "desired_kl": 0.005, "entropy_coef": 0.0,
                 "use_clipped_value_loss": False}},
-            "skrl": {"env": {"num_envs": 128}, "agent": {"max_iterations": 80, "rollouts": 32,
+            "skrl": {"env": {"num_envs": 128}, "agent": {"max_iterations": 120, "rollouts": 32,
                                                          "mini_batches": 16, "desired_kl": 0.005}},
             # Isaac Lab's rl_games cartpole settings (horizon 32), with a tighter KL target and
             # a smaller reward scale for Isaac Lab's reward (returns of ~250 a 5 s episode):
