@@ -298,3 +298,26 @@ def test_a_contact_buffer_overflow_is_counted_by_name_and_its_envs_reset():
     overflows = {k: v for k, v in stats.items() if k.startswith("sim/overflow/")}
     assert overflows and all(v > 0 for v in overflows.values()), stats
     assert stats.get("sim/instabilities", 0) > 0
+
+
+def test_play_turns_observation_noise_off_unless_asked_and_sets_nothing_else(tmp_path):
+    logs = tmp_path / "logs"
+    trained = lab("train", "--task", "ant", "--framework", "rsl_rl", "--num-envs", "4",
+                  "--max-iterations", "1", "--set", "agent.num_steps_per_env=4",
+                  "--set", "agent.actor_hidden_dims=[8]", "--set", "agent.critic_hidden_dims=[8]",
+                  logs=logs)
+    assert trained.exit_code == 0, trained.output
+    run = next(logs.glob("rsl_rl/ant/*"))
+    assert "observation_noise: true" in (run / "params" / "env.yaml").read_text()
+    for extra in ([], ["--set", "env.observation_noise=true"]):
+        played = lab("play", "--last", "--task", "ant", "--episodes", "1", *extra, logs=logs)
+        assert played.exit_code == 0 and "1 episodes" in played.stdout, played.output
+    from labcli.runs.play import load
+
+    for overrides, noise in (((), False), (("env.observation_noise=true",), True)):
+        loaded = load(run_dir=run, overrides=overrides)
+        assert loaded.env.cfg.observation_noise is noise
+        loaded.env.close()
+    refused = lab("play", "--last", "--task", "ant", "--set", "env.num_envs=3", logs=logs)
+    assert_one_line_error(refused, "--set env.num_envs cannot change a run",
+                          "env.observation_noise")
