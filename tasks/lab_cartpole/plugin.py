@@ -20,7 +20,7 @@ def register_tasks(register):
         success="pole within 0.2 rad of upright and cart in bounds at the 5 s time-out",
         framework_defaults={
             "sb3": {"env": {"num_envs": 128}, "agent": {
-                "max_iterations": 100, "n_steps": 32, "batch_size": 1024, "n_epochs": 20,
+                "max_iterations": 150, "n_steps": 32, "batch_size": 1024, "n_epochs": 20,
                 "learning_rate": 5e-4, "activation": "elu", "vf_coef": 1.0,
                 "max_grad_norm": 1.0,
                 # Cartpole's observations are O(1) already; VecNormalize's moving statistics
