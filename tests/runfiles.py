@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import hashlib
 import json
+import subprocess
+import sys
 from pathlib import Path
 
 
@@ -40,3 +42,16 @@ def snapshot_of(root: Path) -> dict[Path, int]:
     """Every file and directory under `root` with its modification time: equal snapshots mean
     nothing was written."""
     return {p: p.stat().st_mtime_ns for p in root.rglob("*")}
+
+
+def kill_when_writing(script: str, *args: str) -> None:
+    """Run the Python `script` with `args` and SIGKILL it as soon as it prints "writing" (the
+    scripts print it from inside a write they have slowed down)."""
+    proc = subprocess.Popen([sys.executable, "-c", script, *args], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout.readline().strip() == "writing", proc.stderr.read()
+        proc.kill()
+        proc.wait(timeout=30)
+    finally:
+        proc.kill()

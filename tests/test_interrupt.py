@@ -18,6 +18,7 @@ from pathlib import Path
 import pytest
 import torch
 from lab_skrl.framework import SkrlFramework
+from runfiles import kill_when_writing
 
 from labcli import testing
 from labcli.errors import LabError
@@ -233,14 +234,7 @@ KILLED_MID_SAVE = textwrap.dedent("""
 
 def test_sigkill_while_a_checkpoint_is_written_leaves_the_previous_one(tmp_path):
     logs = tmp_path / "logs"
-    proc = subprocess.Popen([sys.executable, "-c", KILLED_MID_SAVE, str(logs)],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    try:
-        assert proc.stdout.readline().strip() == "writing", proc.stderr.read()
-        proc.kill()
-        proc.wait(timeout=30)
-    finally:
-        proc.kill()
+    kill_when_writing(KILLED_MID_SAVE, str(logs))
     (run_dir,) = run_dirs(logs)
     fw = registry.get_framework("sb3")
     assert not fw.checkpoint_path(run_dir, 2).exists()  # only its staging dir was written

@@ -21,7 +21,7 @@ import torch
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from oneline import assert_one_line_error
-from runfiles import remanifest, snapshot_of
+from runfiles import kill_when_writing, remanifest, snapshot_of
 from typer.testing import CliRunner
 
 from labcli import testing
@@ -177,27 +177,41 @@ def test_a_zip_of_junk_under_a_checkpoint_name_is_never_picked(trained, tmp_path
 WEIGHTS = {"rsl_rl": "actor_state_dict", "skrl": "policy", "rl_games": "model"}
 
 
+def damage_checkpoint(run_dir: Path, framework: str, damage) -> str:
+    """Apply `damage` to checkpoint 2's saved dict and make its manifest match, as a hand edit
+    of the file would; returns the file's name."""
+    name = checkpoints_name(framework, 2)
+    saved = torch.load(run_dir / name, weights_only=True)
+    damage(saved)
+    torch.save(saved, run_dir / name)
+    remanifest(run_dir, 2)
+    return name
+
+
+def assert_every_reader_refuses(logs: Path, framework: str, phrase: str) -> None:
+    """play, export and a resume each end in one line naming `phrase`, and write nothing."""
+    before = snapshot_of(logs)
+    for args in (["play", "--last"], ["export", "onnx"],
+                 ["train", "--task", "cartpole", "--framework", framework, "--checkpoint",
+                  "latest", "--max-iterations", "3"]):
+        assert_one_line_error(lab(*args, logs=logs), phrase)
+    assert snapshot_of(logs) == before
+
+
 @pytest.mark.parametrize("framework", list(WEIGHTS))
 def test_a_checkpoint_with_nan_weights_is_refused_before_anything_is_written(framework, trained,
                                                                               tmp_path):
     logs, run_dir = fresh_copy(trained[framework], tmp_path)
     (run_dir / "exported").mkdir()
     (run_dir / "exported" / "policy.onnx").write_text("the previous export")
-    name = checkpoints_name(framework, 2)
-    path = run_dir / name
-    saved = torch.load(path, weights_only=True)
-    weights = saved[WEIGHTS[framework]]
-    for tensor in weights.values():
-        if tensor.is_floating_point():
-            tensor.fill_(float("nan"))
-    torch.save(saved, path)
-    remanifest(run_dir, 2)
-    before = snapshot_of(logs)
-    for args in (["play", "--last"], ["export", "onnx"],
-                 ["train", "--task", "cartpole", "--framework", framework, "--checkpoint",
-                  "latest", "--max-iterations", "3"]):
-        assert_one_line_error(lab(*args, logs=logs), f"{name} holds non-finite weights")
-    assert snapshot_of(logs) == before
+
+    def nan_weights(saved: dict) -> None:
+        for tensor in saved[WEIGHTS[framework]].values():
+            if tensor.is_floating_point():
+                tensor.fill_(float("nan"))
+
+    name = damage_checkpoint(run_dir, framework, nan_weights)
+    assert_every_reader_refuses(logs, framework, f"{name} holds non-finite weights")
     assert (run_dir / "exported" / "policy.onnx").read_text() == "the previous export"
 
 
@@ -237,18 +251,8 @@ DAMAGE = {"rsl_rl": RSL_RL_DAMAGE, "skrl": SKRL_DAMAGE, "rl_games": RL_GAMES_DAM
     (framework, name) for framework, cases in DAMAGE.items() for name in cases])
 def test_a_checkpoint_with_damaged_metadata_is_one_line(framework, damage, trained, tmp_path):
     logs, run_dir = fresh_copy(trained[framework], tmp_path)
-    name = checkpoints_name(framework, 2)
-    path = run_dir / name
-    saved = torch.load(path, weights_only=True)
-    DAMAGE[framework][damage](saved)
-    torch.save(saved, path)
-    remanifest(run_dir, 2)
-    before = snapshot_of(logs)
-    for args in (["play", "--last"], ["export", "onnx"],
-                 ["train", "--task", "cartpole", "--framework", framework, "--checkpoint",
-                  "latest", "--max-iterations", "3"]):
-        assert_one_line_error(lab(*args, logs=logs), name)
-    assert snapshot_of(logs) == before
+    name = damage_checkpoint(run_dir, framework, DAMAGE[framework][damage])
+    assert_every_reader_refuses(logs, framework, name)
 
 
 STATE_DAMAGE = {"empty dict": {}, "a list": [1, 2], "no rng": "drop rng",
@@ -448,14 +452,7 @@ def test_a_kill_during_a_re_export_leaves_the_previous_export(trained, tmp_path)
     logs, run_dir = fresh_copy(trained["rsl_rl"], tmp_path)
     assert lab("export", "onnx", "--run", str(run_dir), logs=logs).exit_code == 0
     exported = {p.name: p.read_bytes() for p in (run_dir / "exported").iterdir()}
-    proc = subprocess.Popen([sys.executable, "-c", KILLED_MID_EXPORT, str(run_dir)],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    try:
-        assert proc.stdout.readline().strip() == "writing", proc.stderr.read()
-        proc.kill()
-        proc.wait(timeout=30)
-    finally:
-        proc.kill()
+    kill_when_writing(KILLED_MID_EXPORT, str(run_dir))
     for name, data in exported.items():
         assert (run_dir / "exported" / name).read_bytes() == data
 
