@@ -39,26 +39,42 @@ def base_up_proj(task: RobotTask, cfg: c.UpProj) -> torch.Tensor:
     return -task.robot.projected_gravity_b[:, 2:3]
 
 
-def direction_to_target(task: RobotTask, target: tuple[float, float, float]) -> torch.Tensor:
-    """The horizontal unit vector from the root toward `target`, `[n, 3]` (once per state)."""
+def to_target(task: RobotTask, target: tuple[float, float, float]) -> torch.Tensor:
+    """The horizontal vector from the root to `target`, `[n, 3]`. This and the values below
+    are computed once per state: observations, rewards and success share them."""
 
     def compute() -> torch.Tensor:
-        to_target = task.constant(target) - task.robot.root_pos
-        to_target[:, 2] = 0.0
-        return torch.nn.functional.normalize(to_target, dim=1)
+        vector = task.constant(target) - task.robot.root_pos
+        vector[:, 2] = 0.0
+        return vector
 
-    return task.robot.per_state(("direction_to_target", target), compute)
+    return task.robot.per_state(("to_target", target), compute)
+
+
+def distance_to_target(task: RobotTask, target: tuple[float, float, float]) -> torch.Tensor:
+    return task.robot.per_state(("distance_to_target", target), lambda: (
+        torch.linalg.vector_norm(to_target(task, target), dim=1)))
+
+
+def direction_to_target(task: RobotTask, target: tuple[float, float, float]) -> torch.Tensor:
+    """The horizontal unit vector from the root toward `target`, `[n, 3]`."""
+    return task.robot.per_state(("direction_to_target", target), lambda: (
+        to_target(task, target) / distance_to_target(task, target).clamp_min(1e-12)[:, None]))
+
+
+def heading_projection(task: RobotTask, target: tuple[float, float, float]) -> torch.Tensor:
+    """The root's forward (x) axis projected on the horizontal direction to `target`, `[n]`."""
+    return task.robot.per_state(("heading_projection", target), lambda: (
+        (task.robot.forward_w * direction_to_target(task, target)).sum(dim=1)))
 
 
 def base_heading_proj(task: RobotTask, cfg: c.HeadingProj) -> torch.Tensor:
-    """The root's forward (x) axis projected on the horizontal direction to the target."""
-    heading = task.robot.forward_w * direction_to_target(task, cfg.target)
-    return heading.sum(dim=1, keepdim=True)
+    return heading_projection(task, cfg.target)[:, None]
 
 
 def base_angle_to_target(task: RobotTask, cfg: c.AngleToTarget) -> torch.Tensor:
-    to_target = task.constant(cfg.target) - task.robot.root_pos
-    angle = torch.atan2(to_target[:, 1], to_target[:, 0]) - task.robot.yaw
+    vector = to_target(task, cfg.target)
+    angle = torch.atan2(vector[:, 1], vector[:, 0]) - task.robot.yaw
     return math.wrap_to_pi(angle)[:, None]
 
 

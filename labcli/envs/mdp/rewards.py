@@ -10,7 +10,7 @@ import torch
 
 from labcli.envs.mdp import config as c
 from labcli.envs.mdp import sensors
-from labcli.envs.mdp.observations import base_heading_proj
+from labcli.envs.mdp.observations import distance_to_target, heading_projection
 
 if TYPE_CHECKING:
     from labcli.envs.mdp.task import RobotTask
@@ -25,12 +25,11 @@ class progress_reward:  # noqa: N801 - a term, named as Isaac Lab's
     """The potential -distance/dt to the target after the step minus before it."""
 
     def __init__(self, task: RobotTask, cfg: c.Progress):
-        self.task, self.target = task, task.constant(cfg.target)
+        self.task, self.target = task, cfg.target
         self.before = torch.zeros_like(task.ones)
 
     def potential(self) -> torch.Tensor:
-        to_target = self.target - self.task.robot.root_pos
-        return -torch.linalg.vector_norm(to_target[:, :2], dim=1) / self.task.step_dt
+        return distance_to_target(self.task, self.target) / -self.task.step_dt
 
     def pre_physics(self) -> None:
         self.before.copy_(self.potential())
@@ -44,7 +43,7 @@ def upright_posture_bonus(task: RobotTask, cfg: c.Upright) -> torch.Tensor:
 
 
 def move_to_target_bonus(task: RobotTask, cfg: c.MoveToTarget) -> torch.Tensor:
-    heading = base_heading_proj(task, cfg)[:, 0]  # type: ignore[arg-type]
+    heading = heading_projection(task, cfg.target)
     return torch.where(heading > cfg.threshold, 1.0, heading / cfg.threshold)
 
 

@@ -120,9 +120,9 @@ class RobotTask(Task):
         if not self._obs:
             raise LabError("the task's config lists no observation terms",
                            "give env.observations at least one term")
-        widths = [len(self._names(b)) for b in self._obs]
-        self.observation_names = [name for b in self._obs for name in self._names(b)]
-        self._post = ObservationPost(self, [b.cfg for b in self._obs], widths)
+        names = [self._names(b) for b in self._obs]
+        self.observation_names = [name for term in names for name in term]
+        self._post = ObservationPost(self, [b.cfg for b in self._obs], [len(n) for n in names])
 
     # the env's calls ---------------------------------------------------------------------------
     def apply_actions(self, actions: torch.Tensor) -> None:
