@@ -37,8 +37,8 @@ class TaskConfig(BaseModel):
     cuda_graph: bool = Field(True, description="on a GPU, replay each env step as one CUDA graph "
                              "(false: step eagerly, for debugging a task)")
 
-    def weights(self) -> dict[str, float]:
-        """Each reward term's weight, by name."""
+    def weights(self, step_dt: float) -> dict[str, float]:
+        """Each reward term's weight per env step of `step_dt` s, by name."""
         return dict(self.reward_weights)
 
 

@@ -69,7 +69,7 @@ class LabVecEnv(gym.vector.VectorEnv):
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
         self.action_space = batch_space(self.single_action_space, self.num_envs)
 
-        reward_weights = cfg.weights()
+        reward_weights = cfg.weights(self.step_dt)
         self.reward_names = list(reward_weights)
         term_names = set(self.task.reward_terms())
         if term_names != set(self.reward_names):
@@ -80,13 +80,14 @@ class LabVecEnv(gym.vector.VectorEnv):
         weights = torch.tensor([reward_weights[k] for k in self.reward_names],
                                device=self.device)
         self.termination_names = [*self.task.terminations(), UNSTABLE]
+        self.metric_names = list(self.task.episode_metrics())
         self.generator = torch.Generator(self.device)
         self.generator.manual_seed(seed)
         self.task.generator = self.generator
         self._np_random, self._np_random_seed = gym.utils.seeding.np_random(seed)
 
         n, dev = self.num_envs, self.device
-        k, t = len(self.reward_names), len(self.termination_names)
+        k, t, m = len(self.reward_names), len(self.termination_names), len(self.metric_names)
         self.episode_length = torch.zeros(n, dtype=torch.long, device=dev)
         # Per-env figures are kept as rows over the envs (`[figure, num_envs]`) or tiled to the
         # full shape: an op that broadcasts over a short last dimension steps through the envs
@@ -98,9 +99,10 @@ class LabVecEnv(gym.vector.VectorEnv):
         self._weighted = torch.empty(n, k, device=dev)
         # One row per figure that `pop_stats` reports, one column per env (see `_accumulate`),
         # and where each figure goes in it: views made once, each shaped like its figure.
-        self._ended = torch.empty(5 + k + t, n, dtype=torch.float64, device=dev)
+        self._ended = torch.empty(5 + k + t + m, n, dtype=torch.float64, device=dev)
         e = self._ended
-        self._ended_figures = (e[0], e[1:2 + k], e[2 + k], e[3 + k], e[4 + k:-1], e[-1])
+        self._ended_figures = (e[0], e[1:2 + k], e[2 + k], e[3 + k], e[4 + k:4 + k + t],
+                               e[4 + k + t], *([e[5 + k + t:]] if m else []))
         self._stats = torch.zeros(len(e), dtype=torch.float64, device=dev)
         self._all = torch.ones(n, dtype=torch.bool, device=dev)
         # NEXT_STEP: the envs that ended on the last step, to be reset on this one.
@@ -193,6 +195,7 @@ class LabVecEnv(gym.vector.VectorEnv):
         if next_step:
             done.logical_and_(live)
         truncated = done ^ terminated_any  # timed out and not terminated
+        self.task.after_step()
         success = self.task.success(truncated) & truncated
         episode = {"r": self.episode_return.clone(), "l": self.episode_length.clone(),
                    "success": success}
@@ -308,6 +311,8 @@ class LabVecEnv(gym.vector.VectorEnv):
         envs weighted by `done` in one matrix-vector product, not an op per figure. A non-finite
         action always ends its episode, so `done` weights count those too."""
         figures = (done, self._episode_sums, self.episode_length, success, terminated, bad_action)
+        if self.metric_names:
+            figures += (torch.stack(list(self.task.episode_metrics().values())),)
         for rows, figure in zip(self._ended_figures, figures, strict=True):
             rows.copy_(figure)
         self._stats.addmv_(self._ended, self._ended_figures[0])
@@ -330,11 +335,14 @@ class LabVecEnv(gym.vector.VectorEnv):
         }
         for name, total in zip(self.reward_names, values[2:2 + k], strict=True):
             stats[metrics.REWARD_TERM + name] = total / count
-        terminations = values[4 + k:-1]
+        t = len(self.termination_names)
+        terminations = values[4 + k:4 + k + t]
         for name, total in zip(self.termination_names, terminations, strict=True):
             stats[metrics.TERMINATION + name] = total / count
         stats[metrics.INSTABILITIES] = terminations[-1]
-        stats[metrics.NONFINITE_ACTIONS] = values[-1]
+        stats[metrics.NONFINITE_ACTIONS] = values[4 + k + t]
+        for name, total in zip(self.metric_names, values[5 + k + t:], strict=True):
+            stats[metrics.TASK_METRIC + name] = total / count
         return {**stats, **overflows}
 
     # internals -------------------------------------------------------------------------------

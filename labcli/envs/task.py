@@ -89,6 +89,17 @@ class Task:
     def reset(self, mask: torch.Tensor, generator: torch.Generator) -> None:
         """Randomize the state of the envs in `mask`; the sim already put them at the defaults."""
 
+    def after_step(self) -> None:
+        """Called once per env step, after its rewards and terminations and before its success
+        and observations: advance what the task carries from step to step (a command's timer,
+        the feet's air time). The default does nothing."""
+
     def success(self, time_out: torch.Tensor) -> torch.Tensor:
         """Whether each ending episode succeeded, judged on its final state."""
         return torch.zeros_like(time_out)
+
+    def episode_metrics(self) -> dict[str, torch.Tensor]:
+        """Figures per env `[num_envs]` about the episode so far (e.g. a command's mean tracking
+        error), read when episodes end: their mean over the ended episodes is logged as
+        `Metrics/<name>`. The same names on every call; the default has none."""
+        return {}
