@@ -9,6 +9,7 @@ env.rewards.energy=null`) leaves that term out.
 
 from __future__ import annotations
 
+import math
 from typing import Any, ClassVar, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
@@ -43,6 +44,33 @@ class RangeChecked(Term):
             elif isinstance(value, tuple) and len(value) == 2:
                 _check_range(name, value)
         return self
+
+
+# commands -------------------------------------------------------------------------------------
+class UniformVelocityCommand(RangeChecked):
+    """Isaac Lab's UniformVelocityCommand: a base velocity to track (lin x, lin y in m/s, yaw
+    rate in rad/s, in the base's frame) drawn per env from these ranges at reset and every
+    `resampling_time_range` s. A share of envs stands (command 0); in a share of the others,
+    with `heading_command`, the yaw rate steers toward a drawn heading instead
+    (`heading_control_stiffness` x the heading error, clipped to `ang_vel_z`). Logs each
+    episode's mean tracking errors as Metrics/<name>/error_vel_xy and .../error_vel_yaw."""
+
+    impl: ClassVar[str] = "labcli.envs.mdp.commands:UniformVelocityCommand"
+    resampling_time_range: Range = (10.0, 10.0)
+    rel_standing_envs: float = Field(0.02, ge=0, le=1)
+    rel_heading_envs: float = Field(1.0, ge=0, le=1)
+    heading_command: bool = True
+    heading_control_stiffness: float = Field(0.5, ge=0)
+    lin_vel_x: Range = (-1.0, 1.0)
+    lin_vel_y: Range = (-1.0, 1.0)
+    ang_vel_z: Range = (-1.0, 1.0)
+    heading: Range = (-math.pi, math.pi)
+
+
+class CommandRef(Term):
+    """A term about one of the task's commands, by its name in env.commands."""
+
+    command: str = "base_velocity"
 
 
 # observations ---------------------------------------------------------------------------------
@@ -116,6 +144,12 @@ class JointPosNormalized(ObsTerm):
 
 class JointVel(ObsTerm):
     impl: ClassVar[str] = "labcli.envs.mdp.observations:joint_vel_rel"
+
+
+class GeneratedCommands(CommandRef, ObsTerm):
+    """The named command's current value (Isaac Lab's `generated_commands`)."""
+
+    impl: ClassVar[str] = "labcli.envs.mdp.observations:generated_commands"
 
 
 class LastAction(ObsTerm):
@@ -223,6 +257,44 @@ class AngVelXYL2(RewardTerm):
     impl: ClassVar[str] = "labcli.envs.mdp.rewards:ang_vel_xy_l2"
 
 
+class TrackLinVelXYExp(CommandRef, RewardTerm):
+    """exp(-|command xy - base linear velocity xy|^2 / std^2), in the base's frame."""
+
+    impl: ClassVar[str] = "labcli.envs.mdp.rewards:track_lin_vel_xy_exp"
+    std: float = Field(0.5, gt=0)
+
+
+class TrackAngVelZExp(CommandRef, RewardTerm):
+    """exp(-(command yaw rate - base yaw rate)^2 / std^2)."""
+
+    impl: ClassVar[str] = "labcli.envs.mdp.rewards:track_ang_vel_z_exp"
+    std: float = Field(0.5, gt=0)
+
+
+class Contacts(Term):
+    """A term about the contacts of named bodies (patterns) with anything: a body is in contact
+    where the net force of its contacts exceeds `threshold` (N), read from MuJoCo contact
+    sensors that the task adds to the model."""
+
+    bodies: list[str]
+    threshold: float = Field(1.0, ge=0)
+
+
+class FeetAirTime(CommandRef, Contacts, RewardTerm):
+    """At each foot's touchdown, its time in the air minus `threshold_s` (s), summed over the
+    feet; 0 while the command's xy speed is under 0.1 m/s: Isaac Lab's `feet_air_time`, over
+    env steps (a touchdown counts the step it lands in)."""
+
+    impl: ClassVar[str] = "labcli.envs.mdp.rewards:feet_air_time"
+    threshold_s: float = Field(0.5, ge=0)
+
+
+class UndesiredContacts(Contacts, RewardTerm):
+    """The number of named bodies in contact (Isaac Lab's `undesired_contacts`)."""
+
+    impl: ClassVar[str] = "labcli.envs.mdp.rewards:undesired_contacts"
+
+
 # terminations ----------------------------------------------------------------------------------
 class TerminationTerm(Term):
     pass
@@ -240,12 +312,10 @@ class BadOrientation(TerminationTerm):
     limit_angle: float = Field(gt=0)
 
 
-class IllegalContact(TerminationTerm):
-    """A net contact force above `threshold` (N) on any of the named bodies."""
+class IllegalContact(Contacts, TerminationTerm):
+    """Any of the named bodies in contact (its net contact force above `threshold`, N)."""
 
     impl: ClassVar[str] = "labcli.envs.mdp.terminations:illegal_contact"
-    bodies: list[str]
-    threshold: float = Field(1.0, ge=0)
 
 
 # events ----------------------------------------------------------------------------------------
@@ -260,6 +330,15 @@ class ResetJointsByOffset(EventTerm):
     impl: ClassVar[str] = "labcli.envs.mdp.events:reset_joints_by_offset"
     position_range: Range = (0.0, 0.0)
     velocity_range: Range = (0.0, 0.0)
+
+
+class ResetJointsByScale(EventTerm):
+    """At reset, each joint's default position and velocity times a uniform draw from these
+    ranges, positions clamped to the joint's limits (Isaac Lab's `reset_joints_by_scale`)."""
+
+    impl: ClassVar[str] = "labcli.envs.mdp.events:reset_joints_by_scale"
+    position_range: Range = (1.0, 1.0)
+    velocity_range: Range = (1.0, 1.0)
 
 
 POSE_KEYS = ("x", "y", "z", "roll", "pitch", "yaw")
@@ -320,6 +399,21 @@ class RandomizeMass(ModelEvent):
     mass_range: Range = (0.0, 0.0)
 
 
+class RandomizeCom(ModelEvent):
+    """Each named body's center of mass moved by a draw per axis from `com_range` (m, keys x,
+    y, z; keys left out stay), per env: Isaac Lab's `randomize_rigid_body_com`."""
+
+    impl: ClassVar[str] = "labcli.envs.mdp.events:randomize_rigid_body_com"
+    com_range: dict[str, Range] = Field(default_factory=dict)
+
+    @model_validator(mode="after")
+    def _known_axes(self) -> RandomizeCom:
+        unknown = set(self.com_range) - {"x", "y", "z"}
+        if unknown:
+            raise ValueError(f"com_range has {sorted(unknown)}; its keys are x, y, z")
+        return self
+
+
 # actions ---------------------------------------------------------------------------------------
 class ActionTerm(Term):
     """How actions in [-1, 1] become controls: `scale` for every actuator, or per actuator by
@@ -350,6 +444,15 @@ class MovedTowardTarget(Target):
     distance: float = Field(gt=0)
 
 
+class TrackedCommand(CommandRef):
+    """An episode that reached its time-out tracking the named velocity command with a mean
+    error under `lin_vel_error` (m/s, xy) and `ang_vel_error` (rad/s, yaw rate) succeeded."""
+
+    impl: ClassVar[str] = "labcli.envs.mdp.success:tracked_command"
+    lin_vel_error: float = Field(0.25, gt=0)
+    ang_vel_error: float = Field(0.3, gt=0)
+
+
 # the task ---------------------------------------------------------------------------------------
 class Group(BaseModel):
     """A group of terms: each field one term, None to leave it out."""
@@ -374,6 +477,7 @@ class RobotTaskConfig(TaskConfig):
     # Concrete types: a run's params/env.yaml is read back into them. A subclass declares its own
     # (e.g. `actions: JointPosition = JointPosition(scale=0.25)`).
     actions: JointEffort = JointEffort()
+    commands: Group = Group()
     observations: Group = Group()
     rewards: Group = Group()
     terminations: Group = Group()
@@ -381,6 +485,9 @@ class RobotTaskConfig(TaskConfig):
     observation_noise: bool = Field(True, description="add each observation term's noise "
                                     "(training; lab play sets it false unless asked)")
     success: Term | None = None
+    rewards_per_second: bool = Field(False, description="weights are per second of the "
+                                     "episode: times the env step's duration in each step "
+                                     "(Isaac Lab's reward manager)")
     reward_weights: dict[str, float] = Field(default_factory=dict, exclude=True)
 
     @model_validator(mode="after")
@@ -390,5 +497,6 @@ class RobotTaskConfig(TaskConfig):
                              "not env.reward_weights")
         return self
 
-    def weights(self) -> dict[str, float]:
-        return {name: term.weight for name, term in self.rewards.terms()}
+    def weights(self, step_dt: float) -> dict[str, float]:
+        per_step = step_dt if self.rewards_per_second else 1.0
+        return {name: term.weight * per_step for name, term in self.rewards.terms()}

@@ -45,6 +45,21 @@ class reset_joints_by_offset:  # noqa: N801 - a term, named as Isaac Lab's
         r.write_joints(pos, vel, mask)
 
 
+class reset_joints_by_scale:  # noqa: N801
+    def __init__(self, task: RobotTask, cfg: c.ResetJointsByScale):
+        self.robot = task.robot
+        k = len(task.robot.joint_ids)
+        self.draw = Uniform(task, [cfg.position_range] * k + [cfg.velocity_range] * k)
+        # The default velocities are 0: scaled, they stay 0.
+        self.zero = torch.zeros_like(task.robot.default_joint_pos)
+
+    def reset(self, mask: torch.Tensor) -> None:
+        r = self.robot
+        pos = self.draw()[:, :len(r.joint_ids)] * r.default_joint_pos
+        pos = torch.minimum(torch.maximum(pos, r.joint_lower), r.joint_upper)
+        r.write_joints(pos, self.zero, mask)
+
+
 class reset_root_state_uniform:  # noqa: N801
     """Only what the ranges move is drawn and written: with Isaac Lab's empty ranges (ant,
     humanoid) the term leaves the default pose as the reset put it, at no cost per step."""
@@ -91,16 +106,17 @@ class push_by_setting_velocity:  # noqa: N801
 class _ModelEvent:
     """Draws per-env values of an MjModel field for some of its rows (the geoms or bodies of
     the named bodies) and hands them to the sim: at start-up for all envs, or at every reset
-    for the envs reset."""
+    for the envs reset. `ranges`: one per value of a row (a scalar field's one, a vector's
+    per component)."""
 
     field: ClassVar[str]
 
-    def __init__(self, task: RobotTask, rows: list[int], value_range: tuple[float, float],
+    def __init__(self, task: RobotTask, rows: list[int], ranges: list[tuple[float, float]],
                  mode: str):
         self.sim = task.sim
         self.values = task.sim.model_field(self.field)
         self.rows = torch.tensor(rows, dtype=torch.long, device=self.values.device)
-        self.draw = Uniform(task, [value_range] * len(rows))
+        self.draw = Uniform(task, ranges * len(rows))
         self.everyone = torch.ones(task.num_envs, dtype=torch.bool, device=self.values.device)
         self.base = self.column().clone()
         if mode == "reset":
@@ -112,9 +128,9 @@ class _ModelEvent:
         return self.values[:, self.rows]
 
     def apply(self, mask: torch.Tensor) -> None:
-        new = self.new_values(self.draw().to(self.values.dtype))
         current = self.column()
-        self.write(torch.where(mask[:, None], new, current))
+        new = self.new_values(self.draw().to(self.values.dtype).view(current.shape))
+        self.write(torch.where(mask.view(-1, *[1] * (current.dim() - 1)), new, current))
         self.sim.model_changed(self.field, mask)
 
     def new_values(self, drawn: torch.Tensor) -> torch.Tensor:
@@ -139,7 +155,7 @@ class randomize_rigid_body_friction(_ModelEvent):  # noqa: N801
     fields = ("geom_friction",)
 
     def __init__(self, task: RobotTask, cfg: c.RandomizeFriction):
-        super().__init__(task, _geoms_of(task, cfg.bodies), cfg.friction_range, cfg.mode)
+        super().__init__(task, _geoms_of(task, cfg.bodies), [cfg.friction_range], cfg.mode)
 
     def column(self) -> torch.Tensor:
         return self.values[:, self.rows, 0]  # sliding friction
@@ -148,12 +164,25 @@ class randomize_rigid_body_friction(_ModelEvent):  # noqa: N801
         self.values[:, self.rows, 0] = values
 
 
-class randomize_rigid_body_mass(_ModelEvent):  # noqa: N801
+class _AddedToModel(_ModelEvent):
+    """The model's own value plus the draw."""
+
+    def new_values(self, drawn: torch.Tensor) -> torch.Tensor:
+        return self.base + drawn
+
+
+class randomize_rigid_body_mass(_AddedToModel):  # noqa: N801
     field = "body_mass"
     fields = ("body_mass",)
 
     def __init__(self, task: RobotTask, cfg: c.RandomizeMass):
-        super().__init__(task, _bodies(task, cfg.bodies), cfg.mass_range, cfg.mode)
+        super().__init__(task, _bodies(task, cfg.bodies), [cfg.mass_range], cfg.mode)
 
-    def new_values(self, drawn: torch.Tensor) -> torch.Tensor:
-        return self.base + drawn
+
+class randomize_rigid_body_com(_AddedToModel):  # noqa: N801
+    field = "body_ipos"
+    fields = ("body_ipos",)
+
+    def __init__(self, task: RobotTask, cfg: c.RandomizeCom):
+        axes = [cfg.com_range.get(axis, (0.0, 0.0)) for axis in ("x", "y", "z")]
+        super().__init__(task, _bodies(task, cfg.bodies), axes, cfg.mode)

@@ -43,3 +43,9 @@ def quat_mul(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
                         aw * bx + ax * bw + ay * bz - az * by,
                         aw * by - ax * bz + ay * bw + az * bx,
                         aw * bz + ax * by - ay * bx + az * bw), dim=1)
+
+
+def yaw_of(quat: torch.Tensor) -> torch.Tensor:
+    """The heading (rad) of unit quaternions `[n, 4]`: atan2(R10, R00), as `Robot.yaw`."""
+    w, x, y, z = quat.unbind(1)
+    return torch.atan2(2.0 * (x * y + w * z), w * w + x * x - y * y - z * z)

@@ -90,6 +90,15 @@ def joint_vel_rel(task: RobotTask, cfg: c.JointVel) -> torch.Tensor:
     return task.robot.joint_vel
 
 
+class generated_commands:  # noqa: N801 - a term, named as Isaac Lab's
+    def __init__(self, task: RobotTask, cfg: c.GeneratedCommands):
+        self.command = task.command(cfg.command)
+        self.names = getattr(self.command, "names", None)
+
+    def __call__(self) -> torch.Tensor:
+        return self.command()
+
+
 def last_action(task: RobotTask, cfg: c.LastAction) -> torch.Tensor:
     return task.action
 

@@ -109,3 +109,69 @@ def lin_vel_z_l2(task: RobotTask, cfg: c.LinVelZL2) -> torch.Tensor:
 def ang_vel_xy_l2(task: RobotTask, cfg: c.AngVelXYL2) -> torch.Tensor:
     return task.robot.root_ang_vel_b[:, :2].square().sum(dim=1)
 
+
+
+class track_lin_vel_xy_exp:  # noqa: N801
+    def __init__(self, task: RobotTask, cfg: c.TrackLinVelXYExp):
+        self.command, self.robot = task.command(cfg.command), task.robot
+        self.inv_var = 1.0 / cfg.std**2
+
+    def __call__(self) -> torch.Tensor:
+        error = (self.command.command[:, :2] - self.robot.root_lin_vel_b[:, :2]).square()
+        return torch.exp(error.sum(dim=1).mul_(-self.inv_var))
+
+
+class track_ang_vel_z_exp:  # noqa: N801
+    def __init__(self, task: RobotTask, cfg: c.TrackAngVelZExp):
+        self.command, self.robot = task.command(cfg.command), task.robot
+        self.inv_var = 1.0 / cfg.std**2
+
+    def __call__(self) -> torch.Tensor:
+        error = (self.command.command[:, 2] - self.robot.root_ang_vel_b[:, 2]).square()
+        return torch.exp(error.mul_(-self.inv_var))
+
+
+class feet_air_time:  # noqa: N801
+    """Air time counted in env steps: a foot in contact at the end of the step that was not at
+    the end of the last one touched down in this step, after `air + step` s in the air."""
+
+    def __init__(self, task: RobotTask, cfg: c.FeetAirTime):
+        self.contacts = sensors.BodyContacts(task, cfg.bodies, cfg.threshold)
+        self.command, self.cfg, self.dt = task.command(cfg.command), cfg, task.step_dt
+        feet = len(self.contacts.bodies)
+        self.air = task.ones.new_zeros(task.num_envs, feet)
+        self.was_in_contact = torch.zeros(task.num_envs, feet, dtype=torch.bool,
+                                          device=task.ones.device)
+
+    @staticmethod
+    def sensors(model: mujoco.MjModel, cfg: c.FeetAirTime) -> list[sensors.Sensor]:
+        return sensors.BodyContacts.sensors(model, cfg.bodies)
+
+    def __call__(self) -> torch.Tensor:
+        touchdown = self.contacts() & ~self.was_in_contact
+        reward = ((self.air + (self.dt - self.cfg.threshold_s)) * touchdown).sum(dim=1)
+        moving = torch.linalg.vector_norm(self.command.command[:, :2], dim=1) > 0.1
+        return reward * moving
+
+    def after_step(self) -> None:
+        contact = self.contacts()
+        self.air.add_(self.dt).masked_fill_(contact, 0.0)
+        self.was_in_contact.copy_(contact)
+
+    def reset(self, mask: torch.Tensor) -> None:
+        # As Isaac Lab's contact sensor after a reset: no air time, no contact yet.
+        self.air.masked_fill_(mask[:, None], 0.0)
+        self.was_in_contact.masked_fill_(mask[:, None], False)
+
+
+class undesired_contacts:  # noqa: N801
+    def __init__(self, task: RobotTask, cfg: c.UndesiredContacts):
+        self.contacts = sensors.BodyContacts(task, cfg.bodies, cfg.threshold)
+        self.dtype = task.ones.dtype
+
+    @staticmethod
+    def sensors(model: mujoco.MjModel, cfg: c.UndesiredContacts) -> list[sensors.Sensor]:
+        return sensors.BodyContacts.sensors(model, cfg.bodies)
+
+    def __call__(self) -> torch.Tensor:
+        return self.contacts().sum(dim=1).to(self.dtype)

@@ -95,3 +95,23 @@ def columns(task: RobotTask, groups: Sequence[Sequence[str]]) -> Callable[[], to
     if index is None:
         return lambda: view
     return lambda: torch.index_select(data, 1, index, out=view)
+
+
+class BodyContacts:
+    """Whether each of the named bodies is in contact, `[n, bodies]`: the net force of its
+    contacts above `threshold` (N). Terms on the same bodies and threshold share one
+    computation per state."""
+
+    def __init__(self, task: RobotTask, patterns: Sequence[str], threshold: float):
+        self.bodies = body_names(task.model, patterns)
+        self.forces = columns(task, [contact_names(b) for b in self.bodies])
+        self.robot, self.threshold = task.robot, threshold
+        self.key = ("in_contact", tuple(self.bodies), threshold)
+
+    @staticmethod
+    def sensors(model: mujoco.MjModel, patterns: Sequence[str]) -> list[Sensor]:
+        return [contact(body) for body in body_names(model, patterns)]
+
+    def __call__(self) -> torch.Tensor:
+        return self.robot.per_state(self.key, lambda: torch.linalg.vector_norm(
+            self.forces().view(-1, len(self.bodies), 3), dim=2) > self.threshold)

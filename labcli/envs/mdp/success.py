@@ -27,3 +27,13 @@ class moved_toward_target:  # noqa: N801
         moved = (self.task.robot.root_pos - self.start) * direction_to_target(self.task,
                                                                               self.cfg.target)
         return moved.sum(dim=1) >= self.cfg.distance
+
+
+class tracked_command:  # noqa: N801
+    def __init__(self, task: RobotTask, cfg: c.TrackedCommand):
+        self.command, self.cfg = task.command(cfg.command), cfg
+
+    def __call__(self) -> torch.Tensor:
+        errors = self.command.metrics()
+        return ((errors["error_vel_xy"] < self.cfg.lin_vel_error)
+                & (errors["error_vel_yaw"] < self.cfg.ang_vel_error))

@@ -5,7 +5,10 @@ models, each term's code a function or a small class named by its config.
 A term's code is either a function `f(task, cfg) -> Tensor`, called every step, or a class made
 once as `Term(task, cfg)` and called every step, which may also have:
 - `pre_physics()`: before the physics steps (remember what the step changes: progress, rates);
+- `after_step()`: once per step, after its rewards and terminations (advance what the term
+  carries from step to step: a command's timer, the feet's air time);
 - `reset(mask)`: after the envs in `mask` were reset (events draw their state here);
+- `metrics()`: figures per env about the episode so far, logged as `Metrics/<term>/<key>`;
 - `names`: observation column names;
 - `sensors(model, cfg)` (a staticmethod): the MuJoCo sensors it reads (labcli/envs/mdp/sensors.py),
   added to the model before it is compiled.
@@ -37,7 +40,8 @@ def impl_of(term: Term) -> Any:
 
 
 def _all_terms(cfg: RobotTaskConfig) -> list[Term]:
-    groups: Sequence[Group] = (cfg.observations, cfg.rewards, cfg.terminations, cfg.events)
+    groups: Sequence[Group] = (cfg.commands, cfg.observations, cfg.rewards, cfg.terminations,
+                               cfg.events)
     return [cfg.actions, *(t for g in groups for _, t in g.terms()),
             *([cfg.success] if cfg.success is not None else [])]
 
@@ -51,12 +55,16 @@ class Built:
         if inspect.isclass(code):
             made = code(task, term)
             self.compute: Callable[[], torch.Tensor] = made
+            self.made = made
             self.pre_physics = getattr(made, "pre_physics", None)
+            self.after_step = getattr(made, "after_step", None)
             self.reset = getattr(made, "reset", None)
+            self.metrics = getattr(made, "metrics", None)
             self.names: list[str] | None = getattr(made, "names", None)
         else:
+            self.made = None
             self.compute = lambda: code(task, term)
-            self.pre_physics = self.reset = None
+            self.pre_physics = self.after_step = self.reset = self.metrics = None
             self.names = None
 
 
@@ -101,15 +109,21 @@ class RobotTask(Task):
 
         self.actuation = impl_of(cfg.actions)(self, cfg.actions)
         self.action_names = [self.robot.joint_names[i] for i in range(sim.model.nu)]
+        # Commands first: the terms made after them find theirs (`command(name)`).
+        self._commands: dict[str, Built] = {}
+        for name, t in cfg.commands.terms():
+            self._commands[name] = Built(self, name, t)
         self._obs = [Built(self, name, t) for name, t in cfg.observations.terms()]
         self._rewards = [Built(self, name, t) for name, t in cfg.rewards.terms()]
         self._terminations = [Built(self, name, t) for name, t in cfg.terminations.terms()]
         self._events = [Built(self, name, t) for name, t in cfg.events.terms()]
         self._success = (Built(self, "success", cfg.success) if cfg.success is not None
                          else None)
-        every = [*self._obs, *self._rewards, *self._terminations, *self._events,
-                 *([self._success] if self._success else [])]
+        every = [*self._commands.values(), *self._obs, *self._rewards, *self._terminations,
+                 *self._events, *([self._success] if self._success else [])]
         self._pre_physics = [b.pre_physics for b in every if b.pre_physics is not None]
+        self._after_step = [b.after_step for b in every if b.after_step is not None]
+        self._metrics = [(b.name, b.metrics) for b in every if b.metrics is not None]
         # Start-up events (per-env physics) run once, at the env's first reset.
         self._startups = [b.compute.startup for b in self._events
                           if hasattr(b.compute, "startup")]
@@ -166,12 +180,28 @@ class RobotTask(Task):
         for hook in self._term_resets:
             hook(mask)
 
+    def after_step(self) -> None:
+        for hook in self._after_step:
+            hook()
+
     def success(self, time_out: torch.Tensor) -> torch.Tensor:
         if self._success is None:
             return torch.zeros_like(time_out)
         return self._success.compute()
 
+    def episode_metrics(self) -> dict[str, torch.Tensor]:
+        return {f"{name}/{key}": value for name, metrics in self._metrics
+                for key, value in metrics().items()}
+
     # helpers for terms -------------------------------------------------------------------------
+    def command(self, name: str) -> Any:
+        """The command term `name` of env.commands, as made (e.g. its `.command` tensor)."""
+        built = self._commands.get(name)
+        if built is None:
+            raise LabError(f"a term reads command '{name}', which env.commands does not have",
+                           f"name one of {sorted(self._commands) or 'no commands: add one'}")
+        return built.made
+
     def constant(self, values: Sequence[float] | float) -> torch.Tensor:
         """A tensor of `values` on the sim's device and dtype, made on first use and kept (by
         value): a tensor built from Python numbers in the step would be a host-to-device copy

@@ -27,14 +27,11 @@ def bad_orientation(task: RobotTask, cfg: c.BadOrientation) -> torch.Tensor:
 
 class illegal_contact:  # noqa: N801 - a term, named as Isaac Lab's
     def __init__(self, task: RobotTask, cfg: c.IllegalContact):
-        bodies = sensors.body_names(task.model, cfg.bodies)
-        self.forces = sensors.columns(task, [sensors.contact_names(b) for b in bodies])
-        self.count, self.threshold = len(bodies), cfg.threshold
+        self.contacts = sensors.BodyContacts(task, cfg.bodies, cfg.threshold)
 
     @staticmethod
     def sensors(model: mujoco.MjModel, cfg: c.IllegalContact) -> list[sensors.Sensor]:
-        return [sensors.contact(body) for body in sensors.body_names(model, cfg.bodies)]
+        return sensors.BodyContacts.sensors(model, cfg.bodies)
 
     def __call__(self) -> torch.Tensor:
-        forces = self.forces().view(-1, self.count, 3)
-        return (torch.linalg.vector_norm(forces, dim=2) > self.threshold).any(dim=1)
+        return self.contacts().any(dim=1)

@@ -1,0 +1,84 @@
+"""Command terms: what the robot is asked to do, drawn per env and shown to the policy
+(observation `generated_commands`), tracked by rewards and judged by success."""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import torch
+
+from labcli.envs.mdp import config as c
+from labcli.envs.mdp import math
+from labcli.envs.mdp.events import Uniform
+
+if TYPE_CHECKING:
+    from labcli.envs.mdp.task import RobotTask
+
+
+class UniformVelocityCommand:
+    """`command` `[n, 3]`: lin x, lin y (m/s) and yaw rate (rad/s) in the base's frame.
+
+    Isaac Lab's order within a step: the step's rewards see the command the policy saw; then
+    (`after_step`) the errors are counted, expired commands drawn again and the heading
+    envs' yaw rates steered from the new state, which the next observation shows."""
+
+    names = ["lin_vel_x", "lin_vel_y", "ang_vel_z"]
+
+    def __init__(self, task: RobotTask, cfg: c.UniformVelocityCommand):
+        self.task, self.cfg, self.robot = task, cfg, task.robot
+        n, like = task.num_envs, task.ones
+        self.command = like.new_zeros(n, 3)
+        self.heading = like.new_zeros(n)
+        self.time_left = like.new_zeros(n)
+        self.heading_env = torch.zeros(n, dtype=torch.bool, device=like.device)
+        self.standing_env = torch.zeros_like(self.heading_env)
+        self.draw = Uniform(task, [cfg.lin_vel_x, cfg.lin_vel_y, cfg.ang_vel_z, cfg.heading,
+                                   cfg.resampling_time_range, (0.0, 1.0), (0.0, 1.0)])
+        # Per-episode sums of the tracking errors, and the steps they sum.
+        self.errors = like.new_zeros(n, 2)
+        self.steps = like.new_zeros(n)
+
+    def __call__(self) -> torch.Tensor:
+        return self.command
+
+    def reset(self, mask: torch.Tensor) -> None:
+        self.errors.masked_fill_(mask[:, None], 0.0)
+        self.steps.masked_fill_(mask, 0.0)
+        self._resample(mask)
+        self._steer()
+
+    def after_step(self) -> None:
+        r = self.robot
+        self.errors[:, 0].add_(torch.linalg.vector_norm(
+            self.command[:, :2] - r.root_lin_vel_b[:, :2], dim=1))
+        self.errors[:, 1].add_((self.command[:, 2] - r.root_ang_vel_b[:, 2]).abs())
+        self.steps.add_(1.0)
+        self.time_left.sub_(self.task.step_dt)
+        self._resample(self.time_left <= 0.0)
+        self._steer()
+
+    def metrics(self) -> dict[str, torch.Tensor]:
+        means = self.errors / self.steps.clamp_min(1.0)[:, None]
+        return {"error_vel_xy": means[:, 0], "error_vel_yaw": means[:, 1]}
+
+    def _resample(self, mask: torch.Tensor) -> None:
+        cfg, drawn = self.cfg, self.draw()
+        m = mask[:, None]
+        torch.where(m, drawn[:, :3], self.command, out=self.command)
+        torch.where(mask, drawn[:, 3], self.heading, out=self.heading)
+        torch.where(mask, drawn[:, 4], self.time_left, out=self.time_left)
+        torch.where(mask, drawn[:, 5] <= cfg.rel_heading_envs, self.heading_env,
+                    out=self.heading_env)
+        torch.where(mask, drawn[:, 6] <= cfg.rel_standing_envs, self.standing_env,
+                    out=self.standing_env)
+
+    def _steer(self) -> None:
+        """The heading envs' yaw rate toward their heading; the standing envs' command 0. From
+        the root's quaternion, not the robot's derived yaw: after a reset this runs before the
+        env recomputes what the robot derives."""
+        cfg = self.cfg
+        if cfg.heading_command:
+            error = math.wrap_to_pi(self.heading - math.yaw_of(self.robot.root_quat))
+            rate = (error * cfg.heading_control_stiffness).clamp(*cfg.ang_vel_z)
+            torch.where(self.heading_env, rate, self.command[:, 2], out=self.command[:, 2])
+        self.command.masked_fill_(self.standing_env[:, None], 0.0)
