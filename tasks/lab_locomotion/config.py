@@ -4,6 +4,8 @@ theirs (classic/{ant,humanoid}/*_env_cfg.py). Set any of it with `--set env.<gro
 
 from __future__ import annotations
 
+from typing import Any, ClassVar
+
 from pydantic import Field
 
 from labcli.envs.mdp import config as c
@@ -87,3 +89,77 @@ class HumanoidConfig(AntConfig):
     observations: HumanoidObservations = HumanoidObservations()
     rewards: HumanoidRewards = HumanoidRewards()
     terminations: HumanoidTerminations = HumanoidTerminations()
+
+
+# Velocity tracking on flat ground: Isaac Lab's Isaac-Velocity-Flat-Unitree-Go1-v0
+# (locomotion/velocity/velocity_env_cfg.py with config/go1/{rough,flat}_env_cfg.py): 200 Hz
+# physics, decimation 4, 20 s episodes.
+class VelocityCommands(c.Group):
+    base_velocity: c.UniformVelocityCommand | None = c.UniformVelocityCommand(
+        resampling_time_range=(10.0, 10.0), rel_standing_envs=0.02, rel_heading_envs=1.0,
+        heading_command=True, heading_control_stiffness=0.5)
+
+
+class VelocityObservations(c.Group):
+    base_lin_vel: c.BaseLinVel | None = c.BaseLinVel(noise=0.1)
+    base_ang_vel: c.BaseAngVel | None = c.BaseAngVel(noise=0.2)
+    projected_gravity: c.ProjectedGravity | None = c.ProjectedGravity(noise=0.05)
+    velocity_commands: c.GeneratedCommands | None = c.GeneratedCommands()
+    joint_pos: c.JointPos | None = c.JointPos(noise=0.01)
+    joint_vel: c.JointVel | None = c.JointVel(noise=1.5)
+    actions: c.LastAction | None = c.LastAction()
+
+
+class Go1FlatRewards(c.Group):
+    track_lin_vel_xy_exp: c.TrackLinVelXYExp | None = c.TrackLinVelXYExp(weight=1.5, std=0.5)
+    track_ang_vel_z_exp: c.TrackAngVelZExp | None = c.TrackAngVelZExp(weight=0.75, std=0.5)
+    lin_vel_z_l2: c.LinVelZL2 | None = c.LinVelZL2(weight=-2.0)
+    ang_vel_xy_l2: c.AngVelXYL2 | None = c.AngVelXYL2(weight=-0.05)
+    dof_torques_l2: c.JointTorquesL2 | None = c.JointTorquesL2(weight=-2e-4)
+    dof_acc_l2: c.JointAccL2 | None = c.JointAccL2(weight=-2.5e-7)
+    action_rate_l2: c.ActionRateL2 | None = c.ActionRateL2(weight=-0.01)
+    feet_air_time: c.FeetAirTime | None = c.FeetAirTime(weight=0.25, bodies=[".*_foot"],
+                                                          threshold_s=0.5)
+    # Isaac Lab's Go1 leaves undesired (thigh) contacts out: --set it to turn it on.
+    undesired_contacts: c.UndesiredContacts | None = None
+    flat_orientation_l2: c.FlatOrientationL2 | None = c.FlatOrientationL2(weight=-2.5)
+
+
+class Go1Terminations(c.Group):
+    base_contact: c.IllegalContact | None = c.IllegalContact(bodies=["trunk"], threshold=1.0)
+
+
+class Go1Events(c.Group):
+    # Start-up: Isaac Lab's Go1 base-mass range (its velocity config has the term off for a
+    # PhysX issue that MuJoCo does not share) and its center-of-mass shift.
+    add_base_mass: c.RandomizeMass | None = c.RandomizeMass(bodies=["trunk"],
+                                                            mass_range=(-1.0, 3.0))
+    base_com: c.RandomizeCom | None = c.RandomizeCom(
+        bodies=["trunk"], com_range={"x": (-0.05, 0.05), "y": (-0.05, 0.05), "z": (-0.01, 0.01)})
+    reset_base: c.ResetRootUniform | None = c.ResetRootUniform(
+        pose_range={"x": (-0.5, 0.5), "y": (-0.5, 0.5), "yaw": (-3.14, 3.14)},
+        velocity_range={k: (-0.1, 0.1) for k in c.POSE_KEYS})
+    reset_robot_joints: c.ResetJointsByScale | None = c.ResetJointsByScale(
+        position_range=(0.5, 1.5), velocity_range=(0.0, 0.0))
+    push_robot: c.PushByVelocity | None = c.PushByVelocity(
+        interval_s=(10.0, 15.0), velocity_range={"x": (-0.1, 0.1), "y": (-0.1, 0.1)})
+
+
+class Go1FlatConfig(c.RobotTaskConfig):
+    # Isaac Lab's _PLAY config: no noise, no pushes.
+    play_overrides: ClassVar[dict[str, Any]] = {**c.RobotTaskConfig.play_overrides,
+                                                "events": {"push_robot": None}}
+    num_envs: int = Field(256, gt=0, le=2**20, description="parallel environments")
+    episode_length_s: float = Field(20.0, gt=0, le=1e6, description="time-out, in seconds")
+    decimation: int = Field(4, gt=0, le=1000, description="physics steps per env step")
+    nconmax: int | None = 16
+    njmax: int | None = 72
+    actions: c.JointPosition = c.JointPosition(scale=0.25)
+    commands: VelocityCommands = VelocityCommands()
+    observations: VelocityObservations = VelocityObservations()
+    rewards: Go1FlatRewards = Go1FlatRewards()
+    terminations: Go1Terminations = Go1Terminations()
+    events: Go1Events = Go1Events()
+    success: c.TrackedCommand | None = c.TrackedCommand(lin_vel_error=0.25, ang_vel_error=0.3)
+    # As Isaac Lab's velocity tasks: a return is the weighted terms' integral over the episode.
+    rewards_per_second: bool = True

@@ -55,9 +55,50 @@ def _spec(name: str, config: str, description: str, max_iterations: int) -> Task
                     framework_defaults=_defaults(num_envs=256, max_iterations=max_iterations))
 
 
+# Isaac Lab's Go1 flat agents (config/go1/agents): 24 steps per env, [128, 128, 128] ELU
+# networks, 5 epochs of 4 mini-batches, lr 1e-3 adapted to a KL of 0.01, entropy 0.01, no
+# observation normalization, 300 iterations at 4,096 envs.
+VELOCITY_NETWORK = [128, 128, 128]
+
+
+def _velocity_defaults(num_envs: int, max_iterations: int) -> dict:
+    env = {"env": {"num_envs": num_envs}}
+    gpu = {"env": {"num_envs": 4096}, "agent": {"max_iterations": 300}}
+    defaults = {
+        "rsl_rl": {**env, "agent": {
+            "max_iterations": max_iterations, "num_steps_per_env": 24,
+            "actor_hidden_dims": VELOCITY_NETWORK, "critic_hidden_dims": VELOCITY_NETWORK,
+            "activation": "elu", "init_noise_std": 1.0, "learning_rate": 1e-3,
+            "desired_kl": 0.01, "num_learning_epochs": 5, "num_mini_batches": 4,
+            "entropy_coef": 0.01, "value_loss_coef": 1.0, "empirical_normalization": False},
+            "warp": gpu},
+        "skrl": {**env, "agent": {
+            "max_iterations": max_iterations, "rollouts": 24, "learning_epochs": 5,
+            "mini_batches": 4, "learning_rate": 1e-3, "desired_kl": 0.01,
+            "entropy_loss_scale": 0.01, "value_loss_scale": 1.0, "hidden_sizes": VELOCITY_NETWORK,
+            "activation": "elu", "normalize_obs": False, "normalize_value": False},
+            "warp": gpu},
+        "sb3": {**env, "agent": {
+            "max_iterations": max_iterations, "n_steps": 24, "batch_size": num_envs * 24 // 4,
+            "n_epochs": 5, "learning_rate": 5e-4, "ent_coef": 0.01, "vf_coef": 1.0,
+            "max_grad_norm": 1.0, "net_arch": VELOCITY_NETWORK, "activation": "elu",
+            "normalize_obs": False},
+            "warp": {"env": gpu["env"], "agent": {**gpu["agent"], "batch_size": 4096 * 24 // 4}}},
+    }
+    return defaults
+
+
 @hookimpl
 def register_tasks(register):
     register(_spec("ant", "AntConfig", "Isaac Lab's Ant: a four-legged ant runs toward a "
                    "target 1 km ahead", max_iterations=150))
     register(_spec("humanoid", "HumanoidConfig", "Isaac Lab's Humanoid: a 17-joint humanoid "
                    "runs toward a target 1 km ahead", max_iterations=1000))
+    register(TaskSpec(
+        name="go1-flat", task=TASK, config="lab_locomotion.config:Go1FlatConfig",
+        model=HERE / "go1.xml",
+        description="Isaac Lab's Velocity-Flat-Unitree-Go1: a Go1 quadruped tracks velocity "
+                    "commands on flat ground",
+        success="at the 20 s time-out, mean tracking errors under 0.25 m/s (xy) and 0.3 rad/s "
+                "(yaw rate)",
+        framework_defaults=_velocity_defaults(num_envs=256, max_iterations=300)))

@@ -1,0 +1,263 @@
+"""Velocity commands, the contact terms built on them, and the go1-flat task: terms against
+hand-computed cases on the real Go1 model at small sizes."""
+
+from __future__ import annotations
+
+import importlib.util
+import math
+
+import mujoco
+import pytest
+import torch
+from lab_locomotion import quadruped
+from lab_locomotion.go1 import ROBOT
+from lab_locomotion.plugin import HERE
+from typer.testing import CliRunner
+
+from labcli.commands.app import app
+from labcli.envs import metrics
+from labcli.gym import make_env
+
+GO1_XML = HERE / "go1.xml"
+DT = 4 * 0.005  # go1-flat: 200 Hz physics, decimation 4
+HAVE_WARP = all(importlib.util.find_spec(m) for m in ("warp", "mujoco_warp"))
+
+
+def lab(*args: str, logs):
+    return CliRunner().invoke(app, list(args), env={"LAB_LOGS_DIR": str(logs), "COLUMNS": "300"})
+
+
+def go1(n: int = 4, *overrides: str, **kwargs):
+    env = make_env("go1-flat", num_envs=n, seed=0,
+                   overrides=["env.observation_noise=false", *overrides], **kwargs)
+    env.reset()
+    return env
+
+
+def terms(env) -> dict:
+    t = env.task
+    return {b.name: b for b in [*t._rewards, *t._terminations, *t._events,
+                                *t._commands.values()]}
+
+
+def yaw_quat(yaw: float) -> list[float]:
+    return [math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2)]
+
+
+def test_the_go1_mjcf_is_written_from_its_numbers_and_stands_on_its_feet():
+    assert GO1_XML.read_text() == quadruped.mjcf(ROBOT, quadruped.standing_height(ROBOT))
+    model = mujoco.MjModel.from_xml_path(str(GO1_XML))
+    assert (model.nu, model.nq) == (12, 19)
+    # Unitree's published masses: 5.204 kg trunk, 4 legs of 0.68 + 1.009 + 0.196 kg.
+    assert model.body_subtreemass[1] == pytest.approx(5.204 + 4 * (0.68 + 1.009 + 0.196))
+    assert model.actuator_forcerange[:, 1].tolist() == [23.7, 23.7, 35.55] * 4
+    data = mujoco.MjData(model)
+    mujoco.mj_resetDataKeyframe(model, data, 0)
+    for _ in range(400):  # 2 s holding the standing pose
+        mujoco.mj_step(model, data)
+    feet = [model.body(f"{leg}_foot").id for leg in quadruped.LEGS]
+    touching = {int(model.geom_bodyid[c.geom[i]]) for c in data.contact[:data.ncon]
+                for i in (0, 1)}
+    assert set(feet) <= touching and len(touching - set(feet)) == 1  # the feet and the floor
+    assert 0.25 < data.qpos[2] < 0.33 and data.qpos[3] > 0.999  # upright, trunk off the floor
+
+
+def test_commands_are_drawn_from_their_ranges_standing_envs_get_zero():
+    env = go1(512, "env.commands.base_velocity.rel_standing_envs=0.25",
+              "env.commands.base_velocity.heading_command=false")
+    command = env.task.command("base_velocity")
+    values = command.command
+    standing = command.standing_env
+    assert 0.15 < standing.float().mean() < 0.35
+    assert (values[standing] == 0).all()
+    moving = values[~standing]
+    assert (moving.abs() <= 1.0).all() and moving.abs().max() > 0.9
+    assert env.observations()[:, 9:12].tolist() == values.float().tolist()  # observed as is
+    env.close()
+
+
+def test_heading_control_steers_the_yaw_rate_toward_the_heading_within_the_range():
+    env = go1(4, "env.commands.base_velocity.rel_standing_envs=0.0")
+    command = env.task.command("base_velocity")
+    r = env.task.robot
+    r.root_quat[:] = torch.tensor(yaw_quat(0.3), dtype=torch.float64)
+    command.heading[:] = torch.tensor([0.5, -1.0, -2.5, -2.9], dtype=torch.float64)
+    command._steer()
+    # 0.5 x the heading error, clipped to the yaw-rate range (-1, 1). The last error, -3.2 rad,
+    # is +3.08 the short way round: it turns left.
+    assert command.command[:, 2].tolist() == pytest.approx([0.1, -0.65, -1.0, 1.0], abs=1e-9)
+    env.close()
+
+
+def test_commands_are_drawn_again_when_their_time_runs_out():
+    env = go1(64, "env.commands.base_velocity.resampling_time_range=[0.05,0.05]",
+              "env.commands.base_velocity.heading_command=false")
+    command = env.task.command("base_velocity")
+    before = command.command.clone()
+    env.step(torch.zeros(64, 12))  # 0.02 s left of 0.05
+    env.step(torch.zeros(64, 12))
+    assert torch.equal(command.command, before)
+    env.step(torch.zeros(64, 12))  # 0.05 s: drawn again
+    assert (command.command != before).any(dim=1).float().mean() > 0.9
+    env.close()
+
+
+def test_tracking_rewards_are_exp_kernels_of_the_error_in_the_base_frame():
+    env = go1(4)
+    t, r = terms(env), env.task.robot
+    command = env.task.command("base_velocity")
+    command.command[:] = torch.tensor([1.0, 0.0, 0.5], dtype=torch.float64)
+    r.root_quat[:] = torch.tensor(yaw_quat(math.pi / 2), dtype=torch.float64)
+    r.root_lin_vel_w[:] = torch.tensor([0.0, 0.8, 0.0], dtype=torch.float64)  # 0.8 forward
+    r.root_ang_vel_b[:] = torch.tensor([0.0, 0.0, 0.2], dtype=torch.float64)
+    env.task.update()
+    assert t["track_lin_vel_xy_exp"].compute()[0].item() == pytest.approx(
+        math.exp(-0.2**2 / 0.25))
+    assert t["track_ang_vel_z_exp"].compute()[0].item() == pytest.approx(
+        math.exp(-0.3**2 / 0.25))
+    env.close()
+
+
+def _set_feet(env, forces_z: list[float]) -> None:
+    """Write the feet's contact sensors (FL, FR, RL, RR) as if the physics had: z forces (N)."""
+    foot = terms(env)["feet_air_time"].made.contacts
+    for i, body in enumerate(foot.bodies):
+        sid = mujoco.mj_name2id(env.sim.model, mujoco.mjtObj.mjOBJ_SENSOR, f"lab:contact:{body}")
+        adr = int(env.sim.model.sensor_adr[sid])
+        env.sim.sensordata[:, adr:adr + 3] = torch.tensor([0.0, 0.0, forces_z[i]],
+                                                          dtype=env.sim.sensordata.dtype)
+    env.task.update()
+
+
+def test_feet_air_time_rewards_each_touchdown_by_its_time_in_the_air():
+    env = go1(2)
+    air_time = terms(env)["feet_air_time"]
+    command = env.task.command("base_velocity")
+    command.command[:] = torch.tensor([[1.0, 0.0, 0.0], [0.05, 0.0, 0.0]], dtype=torch.float64)
+    _set_feet(env, [30.0, 30.0, 30.0, 30.0])
+    air_time.compute(), air_time.after_step()
+    for _ in range(30):  # FL in the air for 30 steps (0.6 s), the others standing
+        _set_feet(env, [0.0, 30.0, 30.0, 30.0])
+        assert air_time.compute().tolist() == [0.0, 0.0]
+        air_time.after_step()
+    _set_feet(env, [30.0, 30.0, 30.0, 30.0])  # touchdown in the 31st step
+    reward = air_time.compute()
+    # 31 steps in the air minus the 0.5 s threshold; none under 0.1 m/s of command.
+    assert reward.tolist() == pytest.approx([31 * DT - 0.5, 0.0])
+    air_time.after_step()
+    assert air_time.compute().tolist() == [0.0, 0.0]  # standing: no new touchdown
+    env.close()
+
+
+def test_undesired_contacts_count_the_bodies_touching(tmp_path):
+    env = go1(2, "env.rewards.undesired_contacts={weight: -1.0, bodies: ['.*_thigh']}")
+    undesired = terms(env)["undesired_contacts"]
+    assert undesired.compute().tolist() == [0.0, 0.0]
+    thighs = undesired.made.contacts
+    for body in thighs.bodies[:3]:
+        sid = mujoco.mj_name2id(env.sim.model, mujoco.mjtObj.mjOBJ_SENSOR, f"lab:contact:{body}")
+        adr = int(env.sim.model.sensor_adr[sid])
+        env.sim.sensordata[0, adr + 2] = 5.0  # over the 1 N threshold
+    env.task.update()
+    assert undesired.compute().tolist() == [3.0, 0.0]
+    env.close()
+
+
+def test_resets_scale_the_joints_shift_the_com_and_add_base_mass():
+    env = go1(64)
+    r = env.task.robot
+    ratio = r.joint_pos / r.default_joint_pos
+    inside = ((r.joint_pos - r.joint_lower).abs().gt(1e-9)
+              & (r.joint_pos - r.joint_upper).abs().gt(1e-9))
+    # Drawn in (0.5, 1.5) x the default, or clamped at a limit.
+    assert ((ratio >= 0.5 - 1e-9) & (ratio <= 1.5 + 1e-9) | ~inside).all()
+    assert ratio.std() > 0.1
+    model = mujoco.MjModel.from_xml_path(str(GO1_XML))
+    com = env.sim.model_field("body_ipos")[:, 1] - torch.as_tensor(model.body_ipos[1])
+    assert (com[:, :2].abs() <= 0.05).all() and (com[:, 2].abs() <= 0.01).all()
+    assert com[:, 0].std() > 0.01
+    mass = env.sim.model_field("body_mass")[:, 1] - model.body_mass[1]
+    assert ((mass >= -1.0) & (mass <= 3.0)).all() and mass.std() > 0.5
+    yaw = torch.atan2(r.rotation[:, 1, 0], r.rotation[:, 0, 0])
+    assert yaw.abs().max() > 2.5  # reset_base turns the robot about z
+    env.close()
+
+
+def test_success_and_tracking_errors_per_episode_are_logged():
+    """Standing still under a command to stand: errors ~0, every timed-out episode succeeds;
+    the same under a command of 1 m/s: a mean xy error of ~1 m/s, none succeeds."""
+    for speed, succeeded in ((0.0, 1.0), (1.0, 0.0)):
+        env = go1(8, "env.episode_length_s=0.5", "env.events.reset_base=null",
+                  "env.events.reset_robot_joints=null", "env.events.push_robot=null",
+                  "env.commands.base_velocity.heading_command=false",
+                  f"env.commands.base_velocity.lin_vel_x=[{speed},{speed}]",
+                  "env.commands.base_velocity.lin_vel_y=[0,0]",
+                  "env.commands.base_velocity.ang_vel_z=[0,0]",
+                  "env.commands.base_velocity.rel_standing_envs=0")
+        hold = torch.zeros(8, 12)
+        for _ in range(25):
+            env.step(hold)
+        stats = env.pop_stats()
+        env.close()
+        assert stats[metrics.EPISODES] == 8
+        assert stats[metrics.SUCCESS_RATE] == succeeded
+        assert stats["Metrics/base_velocity/error_vel_xy"] == pytest.approx(speed, abs=0.1)
+        assert stats["Metrics/base_velocity/error_vel_yaw"] < 0.1
+
+
+def test_weights_are_per_second_as_isaac_lab_s():
+    env = go1(2)
+    assert env._weights[0].tolist() == pytest.approx(
+        [w * DT for w in env.cfg.weights(1.0).values()])
+    env.close()
+
+
+def test_train_play_and_export_go1_from_the_command_line(tmp_path):
+    logs = tmp_path / "logs"
+    trained = lab("train", "--task", "go1-flat", "--framework", "rsl_rl", "--num-envs", "8",
+                  "--max-iterations", "2", "--set", "agent.num_steps_per_env=8", logs=logs)
+    assert trained.exit_code == 0, trained.output
+    played = lab("play", "--last", "--task", "go1-flat", "--episodes", "1", logs=logs)
+    assert played.exit_code == 0 and "1 episodes" in played.stdout, played.output
+    exported = lab("export", "onnx", "--last", "--task", "go1-flat", logs=logs)
+    assert exported.exit_code == 0, exported.output
+    from labcli.runs.play import load
+
+    run = next(logs.glob("rsl_rl/go1-flat/*"))
+    loaded = load(run_dir=run)
+    assert loaded.env.cfg.events.push_robot is None and not loaded.env.cfg.observation_noise
+    loaded.env.close()
+
+
+@pytest.mark.gpu
+@pytest.mark.skipif(not (HAVE_WARP and torch.cuda.is_available()),
+                    reason='needs a CUDA GPU and MuJoCo Warp (pip install -e ".[warp]")')
+def test_both_backends_agree_on_a_short_go1_rollout():
+    """As test_robot_tasks' check for ant and humanoid: from the same state, lifted off the
+    floor, the same actions give the same observations and rewards on both backends."""
+    overrides = ["env.observation_noise=false", "env.events.push_robot=null"]
+    cpu = make_env("go1-flat", num_envs=8, backend="cpu", device="cpu", seed=0,
+                   overrides=overrides)
+    gpu = make_env("go1-flat", num_envs=8, backend="warp", device="cuda", seed=0,
+                   overrides=overrides)
+    cpu.reset(), gpu.reset()
+    lifted = cpu.get_state()
+    lifted["qpos"][:, 2] += 1.0
+    cpu.set_state(lifted)
+    state = {k: (v.to("cuda", torch.float32) if v.is_floating_point() else v.to("cuda"))
+             for k, v in lifted.items() if k != "generator"}
+    state["generator"] = gpu.get_state()["generator"]
+    gpu.set_state(state)
+    # The per-env model fields (mass, center of mass) drawn on each backend differ: copy.
+    for field in ("body_mass", "body_ipos"):
+        gpu.sim.model_field(field).copy_(cpu.sim.model_field(field))
+        gpu.sim.model_changed(field, torch.ones(8, dtype=torch.bool, device="cuda"))
+    actions = torch.rand(10, 8, 12, generator=torch.Generator().manual_seed(1))
+    worst_obs = worst_reward = 0.0
+    for a in actions * 2 - 1:
+        o_cpu, r_cpu, *_ = cpu.step(a)
+        o_gpu, r_gpu, *_ = gpu.step(a.cuda())
+        worst_obs = max(worst_obs, (o_gpu.cpu() - o_cpu).abs().max().item())
+        worst_reward = max(worst_reward, (r_gpu.cpu().double() - r_cpu).abs().max().item())
+    cpu.close(), gpu.close()
+    assert worst_obs < 0.05 and worst_reward < 0.05, (worst_obs, worst_reward)
