@@ -248,10 +248,14 @@ def test_both_backends_agree_on_a_short_go1_rollout():
              for k, v in lifted.items() if k != "generator"}
     state["generator"] = gpu.get_state()["generator"]
     gpu.set_state(state)
-    # The per-env model fields (mass, center of mass) drawn on each backend differ: copy.
+    # What each backend drew at reset differs: the per-env model fields (mass, center of
+    # mass) and the commands. The same on both.
     for field in ("body_mass", "body_ipos"):
         gpu.sim.model_field(field).copy_(cpu.sim.model_field(field))
         gpu.sim.model_changed(field, torch.ones(8, dtype=torch.bool, device="cuda"))
+    mine, theirs = cpu.task.command("base_velocity"), gpu.task.command("base_velocity")
+    for name in ("command", "heading", "time_left", "heading_env", "standing_env"):
+        getattr(theirs, name).copy_(getattr(mine, name))
     actions = torch.rand(10, 8, 12, generator=torch.Generator().manual_seed(1))
     worst_obs = worst_reward = 0.0
     for a in actions * 2 - 1:

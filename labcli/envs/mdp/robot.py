@@ -125,6 +125,10 @@ class Robot:
         torch.atan2(r[:, 2, 1], r[:, 2, 2], out=self.roll)
         torch.asin(r[:, 2, 0].clamp(-1.0, 1.0), out=self.pitch).neg_()
         torch.atan2(r[:, 1, 0], r[:, 0, 0], out=self.yaw)
+        self.forget_derived()
+
+    def forget_derived(self) -> None:
+        """Drop the values `per_state` cached: the next use computes them again."""
         self._per_state.clear()
 
     def joint_pos_normalized(self) -> torch.Tensor:

@@ -140,6 +140,10 @@ class RobotTask(Task):
 
     # the env's calls ---------------------------------------------------------------------------
     def apply_actions(self, actions: torch.Tensor) -> None:
+        # The step starts here: what terms share is computed again inside it. On a GPU the step
+        # replays as a CUDA graph, and a value cached before the capture would be replayed as a
+        # constant (the progress reward's distance, read before the physics).
+        self.robot.forget_derived()
         self.previous_action.copy_(self.action)
         self.action.copy_(actions)
         for hook in self._pre_physics:
