@@ -5,9 +5,11 @@
 
 Per task and env count, env-steps/s (random actions, resets included) of
 - lab: `LabVecEnv` on the cpu backend, torch tensors out (as `lab bench`);
-- rollout: raw `mujoco.rollout` of the env's own model (sensors included) with the same
-  decimation and threads, no task code (`labcli.runs.bench.rollout_rate`, as `lab bench`);
-- gym-sync: gymnasium's `Ant-v5` / `Humanoid-v5` in a `SyncVectorEnv`, what users run today.
+- rollout: raw `mujoco.rollout` of what the env steps (its models, states and the controls its
+  actuation makes of random actions) with the same decimation and threads, no task code
+  (`labcli.runs.bench.rollout_rate`, as `lab bench`);
+- gym-sync: gymnasium's `Ant-v5` / `Humanoid-v5` in a `SyncVectorEnv`, what users run today
+  (tasks gymnasium has no counterpart of, as go1-flat, go without).
   Its env step is 5 physics steps of 0.01 s (Ant) or 0.003 s (Humanoid, RK4 on both) against
   lab's 2 of 1/120 s (implicitfast): the table also gives physics steps/s.
 The median of --repeats interleaved runs; the load average is printed before and after.
@@ -41,7 +43,7 @@ def lab_and_rollout(task: str, num_envs: int, seconds: float) -> tuple[float, fl
     env = LabVecEnv(spec, spec.config_class(num_envs=num_envs), backend="cpu")
     try:
         lab = env_rate(env, seconds)
-        raw = rollout_rate(env.sim.model, num_envs, env.cfg.decimation, env.sim.nthread, seconds)
+        raw = rollout_rate(env, seconds)
         return lab, raw, env.cfg.decimation
     finally:
         env.close()
@@ -83,23 +85,28 @@ def main() -> None:
                 lab, raw, decimation = lab_and_rollout(task, n, args.seconds)
                 runs[task, "lab", n].append(lab)
                 runs[task, "rollout", n].append(raw)
-                gym_rate, frame_skip = gym_sync(task, n, args.seconds)
-                runs[task, "gym-sync", n].append(gym_rate)
-                substeps[task, "lab"], substeps[task, "gym-sync"] = decimation, frame_skip
+                substeps[task, "lab"] = decimation
+                if task in GYM_IDS:
+                    gym_rate, substeps[task, "gym-sync"] = gym_sync(task, n, args.seconds)
+                    runs[task, "gym-sync", n].append(gym_rate)
     median = {key: statistics.median(values) for key, values in runs.items()}
     for task in tasks:
+        gym_id = GYM_IDS.get(task, "gymnasium")
         table = Table(title=f"{task}: env-steps/s, random actions, resets included (median of "
                             f"{args.repeats}); physics steps per env step: lab "
-                            f"{substeps[task, 'lab']}, {GYM_IDS[task]} "
-                            f"{substeps[task, 'gym-sync']}")
-        for col in ("N", "lab", "rollout", f"{GYM_IDS[task]} sync", "lab / rollout",
+                            f"{substeps[task, 'lab']}, {gym_id} "
+                            f"{substeps.get((task, 'gym-sync'), '-')}")
+        for col in ("N", "lab", "rollout", f"{gym_id} sync", "lab / rollout",
                     "lab / gym (env steps)", "lab / gym (physics steps)"):
             table.add_column(col, justify="right")
         for n in counts:
-            lab, raw, gym_rate = (median[task, k, n] for k in ("lab", "rollout", "gym-sync"))
-            physics = (lab * substeps[task, "lab"]) / (gym_rate * substeps[task, "gym-sync"])
-            table.add_row(str(n), fmt(lab), fmt(raw), fmt(gym_rate), ratio(lab, raw),
-                          ratio(lab, gym_rate), f"{physics:.2f}")
+            lab, raw = median[task, "lab", n], median[task, "rollout", n]
+            gym_rate = median.get((task, "gym-sync", n))
+            gym_cells = ["-", "-", "-"] if gym_rate is None else [
+                fmt(gym_rate), ratio(lab, gym_rate),
+                f"{lab * substeps[task, 'lab'] / (gym_rate * substeps[task, 'gym-sync']):.2f}"]
+            table.add_row(str(n), fmt(lab), fmt(raw), gym_cells[0], ratio(lab, raw),
+                          *gym_cells[1:])
         console.print(table)
     load_after = os.getloadavg()
     console.print(f"load average after: {fmt_load(load_after)}", highlight=False)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import io
+import itertools
 import tempfile
 import time
 from collections.abc import Callable, Sequence
@@ -73,33 +74,36 @@ def env_rate(env: LabVecEnv, seconds: float) -> float:
         return rate(step, seconds, sync)
 
 
-def rollout_rate(model: mujoco.MjModel, num_envs: int, nstep: int, nthread: int,
-                 seconds: float) -> float:
-    """The limit of the cpu backend: env-steps/s of bare `mujoco.rollout` on `model` (the env's
-    own, sensors included), `nstep` physics steps of random controls in each actuator's range
-    per env step, on `nthread` threads (MuJoCo's pool, as the cpu backend on more than two),
-    the state copied out, no task code and no resets but of diverged envs."""
+def rollout_rate(env: LabVecEnv, seconds: float, banked: int = 16) -> float:
+    """The limit of the cpu backend: env-steps/s of bare `mujoco.rollout` stepping what `env`
+    steps, without it: the env's own models (sensors included; one per env where the task
+    varies the physics per env), from the env's current states, `decimation` physics steps per
+    env step with the controls the task's actuation makes of uniform random actions (`banked`
+    sets drawn beforehand, in turn), on the env's threads (MuJoCo's pool, as the cpu backend on
+    more than two); the state copied out, no task code, no resets but of diverged envs."""
+    sim, n, nstep = env.sim, env.num_envs, env.cfg.decimation
+    model, nthread = sim.model, sim.nthread
+    gen = torch.Generator().manual_seed(0)
+    controls = []
+    for _ in range(banked):
+        env.task.apply_actions(torch.rand(n, len(env.action_names), generator=gen) * 2 - 1)
+        controls.append(sim.ctrl.numpy()[:, None, :].repeat(nstep, axis=1))
     full = mujoco.mjtState.mjSTATE_FULLPHYSICS
     datas = [mujoco.MjData(model) for _ in range(max(nthread, 1))]
-    models = [model] * num_envs  # skip_checks takes one per env
     initial = np.empty(mujoco.mj_stateSize(model, full))
     mujoco.mj_getState(model, datas[0], initial, full)
-    state = np.tile(initial, (num_envs, 1))
-    low, high = (model.actuator_ctrlrange[:, 0], model.actuator_ctrlrange[:, 1])
-    limited = model.actuator_ctrllimited.astype(bool)
-    low, high = np.where(limited, low, -1.0), np.where(limited, high, 1.0)
+    state = sim.physics_state()
     runner = rollout.Rollout(nthread=nthread if nthread > 1 else 0)
-    rng = np.random.default_rng(0)
-    states = np.empty((num_envs, nstep, state.shape[1]))
-    sensors = np.empty((num_envs, nstep, model.nsensordata))  # recorded, as the backend does
+    states = np.empty((n, nstep, state.shape[1]))
+    sensors = np.empty((n, nstep, model.nsensordata))  # recorded, as the backend does
+    turn = itertools.cycle(controls)
 
     def step() -> int:
-        ctrl = rng.uniform(low, high, (num_envs, 1, model.nu)).repeat(nstep, axis=1)
-        runner.rollout(models, datas, state, ctrl, nstep=nstep, skip_checks=True, state=states,
-                       sensordata=sensors, chunk_size=-(-num_envs // len(datas)))
+        runner.rollout(sim.models, datas, state, next(turn), nstep=nstep, skip_checks=True,
+                       state=states, sensordata=sensors, chunk_size=-(-n // len(datas)))
         state[:] = states[:, -1]
         state[~np.isfinite(state).all(axis=1)] = initial
-        return num_envs
+        return n
 
     try:
         return rate(step, seconds)
@@ -161,8 +165,7 @@ def bench(task: str, num_envs: Sequence[int], *, backend: str | None = None,
             row = BenchRow(task, env.backend, n, env_rate(env, seconds),
                            threads=env.sim.nthread)
             if env.backend == "cpu":
-                row.rollout_steps_per_s = rollout_rate(env.sim.model, n, cfg.decimation,
-                                                       env.sim.nthread, seconds)
+                row.rollout_steps_per_s = rollout_rate(env, seconds)
                 row.ratio_to_rollout = row.env_steps_per_s / row.rollout_steps_per_s
         finally:
             env.close()

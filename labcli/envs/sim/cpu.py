@@ -195,6 +195,15 @@ class CpuSim(Sim):
                        nstep=nstep, state=self._out[envs], sensordata=self._sensors[envs],
                        skip_checks=True, chunk_size=-(-(stop - start) // len(datas)))
 
+    @property
+    def models(self) -> list[mujoco.MjModel]:
+        """The MjModel each env steps with (one object for all, unless fields vary per env)."""
+        return self._models
+
+    def physics_state(self) -> np.ndarray:
+        """A copy of every env's full physics state `[num_envs, mj_stateSize(FULLPHYSICS)]`."""
+        return self._state.copy()
+
     def reset_to_defaults(self, mask: torch.Tensor) -> None:
         # One `where` written straight into the state (out=): faster here than numpy's
         # boolean-mask assignment, which first finds the masked rows.
