@@ -9,6 +9,7 @@ import math
 import mujoco
 import pytest
 import torch
+from backends import lift_and_copy, worst_gaps
 from lab_locomotion.config import AntConfig, AntObservations, AntTerminations, LocomotionEvents
 from lab_locomotion.plugin import HERE
 from oneline import assert_one_line_error
@@ -223,20 +224,8 @@ def test_both_backends_agree_on_a_short_rollout(task):
     gpu = make_env(task, num_envs=8, backend="warp", device="cuda", seed=0,
                    overrides=["env.observation_noise=false"])
     cpu.reset(), gpu.reset()
-    lifted = cpu.get_state()
-    lifted["qpos"][:, 2] += 1.0  # the root's height: its free joint comes first in qpos
-    cpu.set_state(lifted)
-    state = {k: (v.to("cuda", torch.float32) if v.is_floating_point() else v.to("cuda"))
-             for k, v in lifted.items() if k != "generator"}
-    state["generator"] = gpu.get_state()["generator"]
-    gpu.set_state(state)
-    actions = torch.rand(10, 8, len(cpu.action_names), generator=torch.Generator().manual_seed(1))
-    worst_obs = worst_reward = 0.0
-    for a in actions * 2 - 1:
-        o_cpu, r_cpu, *_ = cpu.step(a)
-        o_gpu, r_gpu, *_ = gpu.step(a.cuda())
-        worst_obs = max(worst_obs, (o_gpu.cpu() - o_cpu).abs().max().item())
-        worst_reward = max(worst_reward, (r_gpu.cpu().double() - r_cpu).abs().max().item())
+    lift_and_copy(cpu, gpu)
+    worst_obs, worst_reward = worst_gaps(cpu, gpu)
     cpu.close(), gpu.close()
     assert worst_obs < 0.05 and worst_reward < 0.05, (worst_obs, worst_reward)
 

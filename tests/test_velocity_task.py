@@ -9,6 +9,7 @@ import math
 import mujoco
 import pytest
 import torch
+from backends import lift_and_copy, worst_gaps
 from lab_locomotion import quadruped
 from lab_locomotion.go1 import ROBOT
 from lab_locomotion.plugin import HERE
@@ -241,13 +242,7 @@ def test_both_backends_agree_on_a_short_go1_rollout():
     gpu = make_env("go1-flat", num_envs=8, backend="warp", device="cuda", seed=0,
                    overrides=overrides)
     cpu.reset(), gpu.reset()
-    lifted = cpu.get_state()
-    lifted["qpos"][:, 2] += 1.0
-    cpu.set_state(lifted)
-    state = {k: (v.to("cuda", torch.float32) if v.is_floating_point() else v.to("cuda"))
-             for k, v in lifted.items() if k != "generator"}
-    state["generator"] = gpu.get_state()["generator"]
-    gpu.set_state(state)
+    lift_and_copy(cpu, gpu)
     # What each backend drew at reset differs: the per-env model fields (mass, center of
     # mass) and the commands. The same on both.
     for field in ("body_mass", "body_ipos"):
@@ -256,12 +251,6 @@ def test_both_backends_agree_on_a_short_go1_rollout():
     mine, theirs = cpu.task.command("base_velocity"), gpu.task.command("base_velocity")
     for name in ("command", "heading", "time_left", "heading_env", "standing_env"):
         getattr(theirs, name).copy_(getattr(mine, name))
-    actions = torch.rand(10, 8, 12, generator=torch.Generator().manual_seed(1))
-    worst_obs = worst_reward = 0.0
-    for a in actions * 2 - 1:
-        o_cpu, r_cpu, *_ = cpu.step(a)
-        o_gpu, r_gpu, *_ = gpu.step(a.cuda())
-        worst_obs = max(worst_obs, (o_gpu.cpu() - o_cpu).abs().max().item())
-        worst_reward = max(worst_reward, (r_gpu.cpu().double() - r_cpu).abs().max().item())
+    worst_obs, worst_reward = worst_gaps(cpu, gpu)
     cpu.close(), gpu.close()
     assert worst_obs < 0.05 and worst_reward < 0.05, (worst_obs, worst_reward)
