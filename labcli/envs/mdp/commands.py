@@ -34,15 +34,18 @@ class UniformVelocityCommand:
         self.standing_env = torch.zeros_like(self.heading_env)
         self.draw = Uniform(task, [cfg.lin_vel_x, cfg.lin_vel_y, cfg.ang_vel_z, cfg.heading,
                                    cfg.resampling_time_range, (0.0, 1.0), (0.0, 1.0)])
-        # Per-episode sums of the tracking errors, and the steps they sum.
+        # Per-episode sums of the tracking errors, the steps they sum, and their means (once
+        # per step: success and the logged metrics read them).
         self.errors = like.new_zeros(n, 2)
         self.steps = like.new_zeros(n)
+        self.mean_errors = like.new_zeros(n, 2)
 
     def __call__(self) -> torch.Tensor:
         return self.command
 
     def reset(self, mask: torch.Tensor) -> None:
         self.errors.masked_fill_(mask[:, None], 0.0)
+        self.mean_errors.masked_fill_(mask[:, None], 0.0)
         self.steps.masked_fill_(mask, 0.0)
         self._resample(mask)
         self._steer()
@@ -53,13 +56,13 @@ class UniformVelocityCommand:
             self.command[:, :2] - r.root_lin_vel_b[:, :2], dim=1))
         self.errors[:, 1].add_((self.command[:, 2] - r.root_ang_vel_b[:, 2]).abs())
         self.steps.add_(1.0)
+        torch.div(self.errors, self.steps[:, None], out=self.mean_errors)
         self.time_left.sub_(self.task.step_dt)
         self._resample(self.time_left <= 0.0)
         self._steer()
 
     def metrics(self) -> dict[str, torch.Tensor]:
-        means = self.errors / self.steps.clamp_min(1.0)[:, None]
-        return {"error_vel_xy": means[:, 0], "error_vel_yaw": means[:, 1]}
+        return {"error_vel_xy": self.mean_errors[:, 0], "error_vel_yaw": self.mean_errors[:, 1]}
 
     def _resample(self, mask: torch.Tensor) -> None:
         cfg, drawn = self.cfg, self.draw()

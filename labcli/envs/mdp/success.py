@@ -34,6 +34,6 @@ class tracked_command:  # noqa: N801
         self.command, self.cfg = task.command(cfg.command), cfg
 
     def __call__(self) -> torch.Tensor:
-        errors = self.command.metrics()
-        return ((errors["error_vel_xy"] < self.cfg.lin_vel_error)
-                & (errors["error_vel_yaw"] < self.cfg.ang_vel_error))
+        errors = self.command.mean_errors
+        return ((errors[:, 0] < self.cfg.lin_vel_error)
+                & (errors[:, 1] < self.cfg.ang_vel_error))
