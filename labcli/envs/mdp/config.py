@@ -333,8 +333,9 @@ class ResetJointsByOffset(EventTerm):
 
 
 class ResetJointsByScale(EventTerm):
-    """At reset, each joint's default position and velocity times a uniform draw from these
-    ranges, positions clamped to the joint's limits (Isaac Lab's `reset_joints_by_scale`)."""
+    """At reset, each joint's default position times a uniform draw from `position_range`,
+    clamped to the joint's limits (Isaac Lab's `reset_joints_by_scale`). `velocity_range` is
+    Isaac Lab's key: the default velocities are 0, which any scale leaves 0."""
 
     impl: ClassVar[str] = "labcli.envs.mdp.events:reset_joints_by_scale"
     position_range: Range = (1.0, 1.0)

@@ -46,16 +46,17 @@ class reset_joints_by_offset:  # noqa: N801 - a term, named as Isaac Lab's
 
 
 class reset_joints_by_scale:  # noqa: N801
+    """The default joint velocities are 0: scaled by any draw they stay 0, so only positions
+    are drawn."""
+
     def __init__(self, task: RobotTask, cfg: c.ResetJointsByScale):
         self.robot = task.robot
-        k = len(task.robot.joint_ids)
-        self.draw = Uniform(task, [cfg.position_range] * k + [cfg.velocity_range] * k)
-        # The default velocities are 0: scaled, they stay 0.
+        self.draw = Uniform(task, [cfg.position_range] * len(task.robot.joint_ids))
         self.zero = torch.zeros_like(task.robot.default_joint_pos)
 
     def reset(self, mask: torch.Tensor) -> None:
         r = self.robot
-        pos = self.draw()[:, :len(r.joint_ids)] * r.default_joint_pos
+        pos = self.draw() * r.default_joint_pos
         pos = torch.minimum(torch.maximum(pos, r.joint_lower), r.joint_upper)
         r.write_joints(pos, self.zero, mask)
 
