@@ -110,8 +110,8 @@ def _leg(q: Quadruped, leg: str) -> str:
       </body>"""
 
 
-def _motor(name: str, m: Motor) -> str:
-    return (f'<default class="{name}"><joint axis="{"1 0 0" if name == "hip" else "0 1 0"}" '
+def _motor(name: str, axis: str, m: Motor) -> str:
+    return (f'<default class="{name}"><joint axis="{axis}" '
             f'armature="{m.armature:.6g}"/><position kp="{m.kp:.6g}" kv="{m.kd:.6g}" '
             f'forcerange="{_v((-m.effort, m.effort))}"/></default>')
 
@@ -134,9 +134,9 @@ def mjcf(q: Quadruped, standing_height: float = 0.0) -> str:
   <option timestep="{q.timestep:.6g}" iterations="10" ls_iterations="20"/>
   <visual><global offwidth="1280" offheight="720"/></visual>
   <default>
-    {_motor("hip", q.hip_motor)}
-    {_motor("thigh", q.thigh_motor)}
-    {_motor("calf", q.calf_motor)}
+    {_motor("hip", "1 0 0", q.hip_motor)}
+    {_motor("thigh", "0 1 0", q.thigh_motor)}
+    {_motor("calf", "0 1 0", q.calf_motor)}
     <!-- The robot's geoms touch the floor, not each other. -->
     <default class="limb"><geom type="capsule" contype="1" conaffinity="0"
       rgba="0.25 0.25 0.28 1"/></default>

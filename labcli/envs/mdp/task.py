@@ -110,9 +110,7 @@ class RobotTask(Task):
         self.actuation = impl_of(cfg.actions)(self, cfg.actions)
         self.action_names = [self.robot.joint_names[i] for i in range(sim.model.nu)]
         # Commands first: the terms made after them find theirs (`command(name)`).
-        self._commands: dict[str, Built] = {}
-        for name, t in cfg.commands.terms():
-            self._commands[name] = Built(self, name, t)
+        self._commands = {name: Built(self, name, t) for name, t in cfg.commands.terms()}
         self._obs = [Built(self, name, t) for name, t in cfg.observations.terms()]
         self._rewards = [Built(self, name, t) for name, t in cfg.rewards.terms()]
         self._terminations = [Built(self, name, t) for name, t in cfg.terminations.terms()]
