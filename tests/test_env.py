@@ -452,6 +452,17 @@ def test_actions_are_clipped_to_the_action_space(make_env):
     torch.testing.assert_close(wild.sim.ctrl, inside.double() * wild.cfg.action_scale)
 
 
+def test_clip_actions_sets_the_bound_and_the_action_space(make_env):
+    env = make_env(clip_actions=2.5, action_scale=3.0)
+    env.reset()
+    assert (env.single_action_space.low.tolist(), env.single_action_space.high.tolist()) == (
+        [-2.5], [2.5])
+    assert env.describe()["action_range"] == [-2.5, 2.5]
+    env.step(torch.tensor([7.5, -3.0, 2.0, -0.25, 1e6, -1e6, 0.0, 2.5000001])[:, None])
+    expected = torch.tensor([2.5, -2.5, 2.0, -0.25, 2.5, -2.5, 0.0, 2.5], dtype=torch.float64)
+    torch.testing.assert_close(env.sim.ctrl, expected[:, None] * 3.0)
+
+
 def test_non_finite_actions_reset_the_env_and_count_as_unstable(make_env):
     env = make_env(seed=14)
     env.reset()

@@ -4,6 +4,7 @@ hand-computed cases on the real Go1 model at small sizes."""
 from __future__ import annotations
 
 import importlib.util
+import json
 import math
 
 import mujoco
@@ -227,6 +228,10 @@ def test_train_play_and_export_go1_from_the_command_line(tmp_path):
     run = next(logs.glob("rsl_rl/go1-flat/*"))
     loaded = load(run_dir=run)
     assert loaded.env.cfg.events.push_robot is None and not loaded.env.cfg.observation_noise
+    # Trained unclipped (±100, as Isaac Lab), played and exported unclipped.
+    assert loaded.policy.clip == loaded.env.clip_actions == 100.0
+    meta = json.loads((run / "exported" / "policy.onnx.json").read_text())
+    assert meta["output"]["range"] == [-100.0, 100.0]
     loaded.env.close()
 
 

@@ -27,6 +27,8 @@ class TaskConfig(BaseModel):
     decimation: int = Field(2, gt=0, le=1000, description="physics steps per env step")
     sim_dt: float | None = Field(None, gt=0, description="physics step; None keeps the MJCF's")
     action_scale: float = Field(1.0, description="policy action in [-1, 1] times this is ctrl")
+    clip_actions: float = Field(1.0, gt=0, description="actions are clipped to ±this before "
+                                "the task turns them into controls: the env's action space")
     reward_weights: dict[str, float] = Field(default_factory=dict)
     threads: int | None = Field(None, gt=0, le=4096, description="cpu backend: threads that "
                                 "step the physics (None: the cores this process may use)")

@@ -65,7 +65,9 @@ class LabVecEnv(gym.vector.VectorEnv):
         self.action_names = list(self.task.action_names)
         self.single_observation_space = gym.spaces.Box(
             -np.inf, np.inf, (len(self.observation_names),), np.float32)
-        self.single_action_space = gym.spaces.Box(-1.0, 1.0, (len(self.action_names),), np.float32)
+        self.clip_actions = cfg.clip_actions
+        self.single_action_space = gym.spaces.Box(-cfg.clip_actions, cfg.clip_actions,
+                                                  (len(self.action_names),), np.float32)
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
         self.action_space = batch_space(self.single_action_space, self.num_envs)
 
@@ -171,7 +173,7 @@ class LabVecEnv(gym.vector.VectorEnv):
         safe = actions.nan_to_num(0.0)
         # nan_to_num changed exactly the non-finite entries (NaN equals nothing, inf != max).
         bad_action = safe.ne(actions).any(dim=1)
-        self.task.apply_actions(safe.clamp_(-1.0, 1.0))
+        self.task.apply_actions(safe.clamp_(-self.clip_actions, self.clip_actions))
         self.sim.step(self.cfg.decimation)
         self.task.update()
         self.episode_length += 1
@@ -234,7 +236,7 @@ class LabVecEnv(gym.vector.VectorEnv):
             "observations": [{"name": name, "unit": units.get(name, "")}
                              for name in self.observation_names],
             "actions": self.task.action_commands(),
-            "action_range": [-1.0, 1.0],
+            "action_range": [-self.clip_actions, self.clip_actions],
             "control_dt": self.step_dt,
             "physics_dt": self.step_dt / self.cfg.decimation,
             "decimation": self.cfg.decimation,

@@ -52,6 +52,7 @@ class GymVecEnv(gym.vector.VectorEnv):
         self.observation_names = [f"obs_{i}" for i in range(n_obs)]
         self.action_names = [f"action_{i}" for i in range(n_act)]
         self.single_observation_space = gym.spaces.Box(-np.inf, np.inf, (n_obs,), np.float32)
+        self.clip_actions = 1.0  # the policy's [-1, 1] spans the gymnasium env's bounds
         self.single_action_space = gym.spaces.Box(-1.0, 1.0, (n_act,), np.float32)
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
         self.action_space = batch_space(self.single_action_space, self.num_envs)

@@ -54,7 +54,8 @@ class Task:
         return ()
 
     def apply_actions(self, actions: torch.Tensor) -> None:
-        """Turn clipped actions in [-1, 1] into controls; the default scales them into ctrl."""
+        """Turn actions (clipped to ±`clip_actions`) into controls; the default scales them into
+        ctrl."""
         torch.mul(actions, self.cfg.action_scale, out=self.sim.ctrl)
 
     def action_commands(self) -> list[dict[str, Any]]:

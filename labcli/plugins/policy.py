@@ -37,16 +37,19 @@ class ObsNormalizer(nn.Module):
 
 
 class Policy(nn.Module):
-    """Observation → deterministic action in [-1, 1], with the observation normalizer inside,
-    so that what is played and exported is exactly what was trained."""
+    """Observation → deterministic action, clipped to ±`clip` as the env clips it, with the
+    observation normalizer inside, so that what is played and exported is exactly what was
+    trained. lab sets `clip` to the env's `clip_actions` when it loads a checkpoint: the bound
+    is the task's, not the library's."""
 
-    def __init__(self, actor: nn.Module, normalizer: nn.Module | None = None):
+    def __init__(self, actor: nn.Module, normalizer: nn.Module | None = None, clip: float = 1.0):
         super().__init__()
         self.normalizer = normalizer if normalizer is not None else nn.Identity()
         self.actor = actor
+        self.clip = clip
 
     def forward(self, obs: torch.Tensor) -> torch.Tensor:
-        return self.actor(self.normalizer(obs)).clamp(-1.0, 1.0)
+        return self.actor(self.normalizer(obs)).clamp(-self.clip, self.clip)
 
 
 @contextlib.contextmanager

@@ -208,6 +208,7 @@ class RunContext(TrainContext):
         try:
             # Policies load onto the CPU (portable checkpoints); the env may be on a GPU.
             policy = self.framework.load_policy(checkpoint, self.env, self.cfg).to(self.env.device)
+            policy.clip = clip = self.env.clip_actions
             with torch.no_grad():
                 actions = policy(obs)
                 live = None if self._actor is None else self._actor(obs)
@@ -217,7 +218,8 @@ class RunContext(TrainContext):
             raise self._diverged(self.iteration, "the policy's actions are not finite (NaN or "
                                  "inf) after this iteration's update", candidate_proven=False)
         if live is not None:
-            self._compare(checkpoint, actions, torch.as_tensor(live).to(actions).clamp(-1, 1))
+            self._compare(checkpoint, actions,
+                          torch.as_tensor(live).to(actions).clamp(-clip, clip))
 
     def _compare(self, checkpoint: Path, actions: torch.Tensor, live: torch.Tensor) -> None:
         """The Policy of `checkpoint` must act as the agent that was saved in it."""

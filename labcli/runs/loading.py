@@ -22,6 +22,7 @@ def policy_of(fw: Framework, checkpoint: Checkpoint, env: Any, cfg: Any) -> Poli
     path = checkpoint.path
     try:
         policy = fw.load_policy(path, env, cfg)
+        policy.clip = env.clip_actions
     except DAMAGED as exc:
         raise LabError(f"checkpoint {path} is not a loadable {fw.name} checkpoint: "
                        f"{type(exc).__name__}: {first_line(exc)}", "pick another checkpoint"

@@ -80,6 +80,9 @@ def agent_params(cfg: RlGamesPPOConfig, env: RlGamesVecEnv, device: str,
             "critic_coef": cfg.critic_coef, "grad_norm": cfg.grad_norm,
             "truncate_grads": cfg.truncate_grads, "clip_value": cfg.clip_value,
             "bounds_loss_coef": cfg.bounds_loss_coef,
+            # The env clips actions to its own space (±its clip_actions): rl_games' clamp to
+            # [-1, 1] and rescale to the space's bounds would stretch them.
+            "clip_actions": False,
             "normalize_input": cfg.normalize_input, "normalize_value": cfg.normalize_value,
             "normalize_advantage": cfg.normalize_advantage,
             # Time-outs are not failures: bootstrap on infos["time_outs"].

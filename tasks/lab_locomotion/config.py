@@ -155,6 +155,10 @@ class Go1FlatConfig(c.RobotTaskConfig):
     nconmax: int | None = 16
     njmax: int | None = 72
     actions: c.JointPosition = c.JointPosition(scale=0.25)
+    # Isaac Lab's and mjlab's velocity tasks do not clip (Isaac Lab's rl_games configs: ±100):
+    # their policies set targets several scales from the standing pose. Clipped to ±1, a
+    # trained Go1 policy pressed 90% of its actions against the bound.
+    clip_actions: float = 100.0
     commands: VelocityCommands = VelocityCommands()
     observations: VelocityObservations = VelocityObservations()
     rewards: Go1FlatRewards = Go1FlatRewards()
