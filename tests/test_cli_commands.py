@@ -83,6 +83,20 @@ def test_config_show_is_a_config_file_train_reproduces(tmp_path):
     assert agent == {**resolved["agent"], "max_iterations": 1, "n_steps": 8, "batch_size": 16}
 
 
+@pytest.mark.parametrize("backend, expected", [
+    ("cpu", {"num_envs": 128, "num_steps_per_env": 32, "num_learning_epochs": 8,
+             "num_mini_batches": 8}),
+    ("warp", {"num_envs": 4096, "num_steps_per_env": 24, "num_learning_epochs": 5,
+              "num_mini_batches": 4}),
+])
+def test_the_backend_picks_cartpoles_rsl_rl_scale(tmp_path, backend, expected):
+    shown = lab("config", "show", "--task", "cartpole", "--framework", "rsl_rl", "--backend",
+                backend, logs=tmp_path)
+    assert shown.exit_code == 0, shown.output
+    resolved = yaml.safe_load(shown.stdout)
+    assert {k: {**resolved["env"], **resolved["agent"]}[k] for k in expected} == expected
+
+
 @pytest.mark.parametrize("content, phrases", [
     (None, ["does not exist"]),
     ("dir", ["is not a regular file"]),
