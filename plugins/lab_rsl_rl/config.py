@@ -18,7 +18,7 @@ class RslRlPpoConfig(AgentConfig):
     resumable: ClassVar[frozenset[str]] = AgentConfig.resumable | {
         "learning_rate", "schedule", "desired_kl", "num_learning_epochs", "num_mini_batches",
         "gamma", "lam", "clip_param", "entropy_coef", "value_loss_coef",
-        "use_clipped_value_loss", "max_grad_norm"}
+        "use_clipped_value_loss", "max_grad_norm", "cuda_graph"}
 
     num_steps_per_env: int = Field(24, gt=0, description="steps per env per iteration")
     actor_hidden_dims: list[PositiveInt] = Field(default_factory=lambda: [64, 64])
@@ -39,6 +39,8 @@ class RslRlPpoConfig(AgentConfig):
     value_loss_coef: float = 1.0
     use_clipped_value_loss: bool = True
     max_grad_norm: float = Field(1.0, gt=0)
+    cuda_graph: bool = Field(True, description="on a GPU, replay each update's mini-batch "
+                             "steps as one CUDA graph (false: RSL-RL's own update)")
 
     def check(self, num_envs: int) -> None:
         samples = self.num_steps_per_env * num_envs

@@ -54,7 +54,8 @@ def runner_config(cfg: RslRlPpoConfig) -> dict[str, Any]:
             "activation": cfg.activation, "obs_normalization": norm,
         },
         "algorithm": {
-            "class_name": "PPO", "learning_rate": cfg.learning_rate, "schedule": cfg.schedule,
+            "class_name": "lab_rsl_rl.ppo:LabPPO", "cuda_graph": cfg.cuda_graph,
+            "learning_rate": cfg.learning_rate, "schedule": cfg.schedule,
             "desired_kl": cfg.desired_kl, "num_learning_epochs": cfg.num_learning_epochs,
             "num_mini_batches": cfg.num_mini_batches, "gamma": cfg.gamma, "lam": cfg.lam,
             "clip_param": cfg.clip_param, "entropy_coef": cfg.entropy_coef,
@@ -134,9 +135,7 @@ class LabRunner(OnPolicyRunner):
                            f"{first_line(exc)}", "resume without changing the network") from exc
         self.current_learning_iteration = self.ctx.start_iteration
         if "learning_rate" in self.ctx.changed:  # the optimizer came back with the old one
-            self.alg.learning_rate = self.ctx.cfg.learning_rate
-            for group in self.alg.optimizer.param_groups:
-                group["lr"] = self.ctx.cfg.learning_rate
+            self.alg.set_learning_rate(self.ctx.cfg.learning_rate)
 
 
 class RslRlFramework(Framework):
