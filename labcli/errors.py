@@ -35,6 +35,14 @@ class Interrupted(LabError):
         self.exit_code = exit_code
 
 
+def one_line(text: str) -> str:
+    """`text` with what is not printable escaped (a newline, or a control character from a
+    file's key, which a terminal or `splitlines` takes for a line break): an error stays one
+    line whatever it quotes."""
+    return "".join(ch if ch.isprintable() else ch.encode("unicode_escape").decode("ascii")
+                   for ch in text)
+
+
 def first_line(exc: BaseException) -> str:
     """The first line of an exception's message (its type's name where it has none): what one
     line of error output can quote."""

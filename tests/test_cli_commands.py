@@ -102,6 +102,8 @@ def test_the_backend_picks_cartpoles_rsl_rl_scale(tmp_path, backend, expected):
     ("dir", ["is not a regular file"]),
     ("env: [unclosed", ["not valid YAML"]),
     ("agent:\n  learning_rat: 1\n", ["unknown key 'agent.learning_rat'", "learning_rate"]),
+    # A control character is a line break to splitlines: the error quotes it escaped.
+    ('agent:\n  "a\\x1cb": 1\n', ["unknown key 'agent.a\\x1cb'"]),
     ("- a list\n", ["must be a mapping"]),
 ])
 def test_a_bad_config_file_is_one_line_exit_2_and_writes_nothing(tmp_path, content, phrases):

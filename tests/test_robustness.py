@@ -26,6 +26,7 @@ from typer.testing import CliRunner
 
 from labcli import testing
 from labcli.commands.app import app
+from labcli.errors import LabError
 from labcli.plugins import registry
 from labcli.runs import checkpoints, rundir
 
@@ -497,6 +498,22 @@ def test_a_run_dir_deleted_while_training_ends_it_in_one_line_and_stays_deleted(
     assert proc.returncode == 2, err
     assert err.strip().splitlines()[-1].startswith("error: ") and "Traceback" not in err
     assert "no longer exists" in err and not run_dir.exists()
+
+
+def test_a_checkpoint_deleted_while_it_is_written_is_said_as_a_deleted_run(tmp_path):
+    # The race the test above can hit: rm has emptied the staging directory, not yet the run
+    # dir, when lab looks for the model it was handed.
+    run_dir = tmp_path / "run"
+    run_dir.mkdir()
+    fw = registry.get_framework("rsl_rl")
+
+    def save(path):
+        path.write_bytes(b"model")
+        shutil.rmtree(path.parent)
+
+    with pytest.raises(LabError, match="no longer exists: it was deleted or moved"):
+        checkpoints.write(run_dir, fw, 1, save)
+    assert list(run_dir.iterdir()) == []
 
 
 def test_a_second_writer_is_refused_at_once_naming_the_first(tmp_path):

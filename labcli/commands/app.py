@@ -13,7 +13,7 @@ import typer
 from labcli import __version__
 from labcli.commands import bench, config, export, info, listing, play, plot, runs, train
 from labcli.commands.common import err
-from labcli.errors import Interrupted, LabError
+from labcli.errors import Interrupted, LabError, one_line
 from labcli.runs import interrupt
 
 SUMMARY = "Train, play and export RL policies for MuJoCo robots with SB3, RSL-RL or skrl."
@@ -45,8 +45,8 @@ def one_line_errors(fn: Callable, *, saves: bool = False) -> Callable:
         except LabError as exc:
             from rich.text import Text
 
-            err().print(Text.assemble(("error:", "bold red"), f" {exc}"), highlight=False,
-                      soft_wrap=True)
+            err().print(Text.assemble(("error:", "bold red"), f" {one_line(str(exc))}"),
+                        highlight=False, soft_wrap=True)
             raise typer.Exit(exc.exit_code) from None
 
     return run

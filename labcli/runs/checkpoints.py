@@ -55,6 +55,8 @@ def write(directory: Path, fw: FrameworkSpec, iteration: int, save: Callable[[Pa
             if extra is not None:
                 extra(staging)
             if not model.is_file():
+                if not staging.is_dir():  # removed under lab: the run dir is being deleted
+                    raise files.deleted(below or directory)
                 raise RuntimeError(f"framework '{fw.name}' did not write its checkpoint at "
                                    f"{model}")
             if check is not None:
