@@ -1,4 +1,5 @@
-"""Registers Ant and Humanoid through the same hook a third-party package would use."""
+"""Registers ant, humanoid and go1-flat through the same hook a third-party package would
+use."""
 
 from pathlib import Path
 
@@ -12,16 +13,22 @@ TASK = "labcli.envs.mdp.task:RobotTask"
 NETWORK = [400, 200, 100]
 
 
-# On the GPU (warp backend): Isaac Lab's 4,096 envs, sb3's mini-batches sized to a quarter of
-# the rollout as theirs. 500 iterations: humanoid reached 94% success in them with rsl_rl and
-# skrl on an H100 (docs/benchmarks.md).
-GPU = {"env": {"num_envs": 4096}, "agent": {"max_iterations": 500}}
-GPU_SB3 = {"env": GPU["env"], "agent": {**GPU["agent"], "batch_size": 4096 * 32 // 4}}
+def _gpu(defaults: dict, max_iterations: int, steps: int) -> dict:
+    """`defaults` with their settings for the GPU (warp backend): Isaac Lab's 4,096 envs,
+    `max_iterations`, sb3's mini-batches a quarter of its `steps`-step rollout, as theirs."""
+    for name, settings in defaults.items():
+        agent = {"max_iterations": max_iterations}
+        if name == "sb3":
+            agent["batch_size"] = 4096 * steps // 4
+        settings["warp"] = {"env": {"num_envs": 4096}, "agent": agent}
+    return defaults
 
 
 def _defaults(num_envs: int, max_iterations: int) -> dict:
     env = {"env": {"num_envs": num_envs}}
-    defaults = {
+    # On the GPU, 500 iterations: humanoid reached 94% success in them with rsl_rl and skrl on
+    # an H100 (docs/benchmarks.md).
+    return _gpu({
         "rsl_rl": {**env, "agent": {
             "max_iterations": max_iterations, "num_steps_per_env": 32,
             "actor_hidden_dims": NETWORK, "critic_hidden_dims": NETWORK, "activation": "elu",
@@ -40,10 +47,7 @@ def _defaults(num_envs: int, max_iterations: int) -> dict:
             "max_iterations": max_iterations, "horizon_length": 32, "mini_epochs": 5,
             "minibatch_size_per_env": 8, "learning_rate": 5e-4, "kl_threshold": 0.01,
             "units": NETWORK, "reward_scale": 0.6}},
-    }
-    for name, settings in defaults.items():
-        settings["warp"] = GPU_SB3 if name == "sb3" else GPU
-    return defaults
+    }, max_iterations=500, steps=32)
 
 
 SUCCESS = "8 m or more toward the target by the 16 s time-out"
@@ -63,29 +67,24 @@ VELOCITY_NETWORK = [128, 128, 128]
 
 def _velocity_defaults(num_envs: int, max_iterations: int) -> dict:
     env = {"env": {"num_envs": num_envs}}
-    gpu = {"env": {"num_envs": 4096}, "agent": {"max_iterations": 300}}
-    defaults = {
+    return _gpu({
         "rsl_rl": {**env, "agent": {
             "max_iterations": max_iterations, "num_steps_per_env": 24,
             "actor_hidden_dims": VELOCITY_NETWORK, "critic_hidden_dims": VELOCITY_NETWORK,
             "activation": "elu", "init_noise_std": 1.0, "learning_rate": 1e-3,
             "desired_kl": 0.01, "num_learning_epochs": 5, "num_mini_batches": 4,
-            "entropy_coef": 0.01, "value_loss_coef": 1.0, "empirical_normalization": False},
-            "warp": gpu},
+            "entropy_coef": 0.01, "value_loss_coef": 1.0, "empirical_normalization": False}},
         "skrl": {**env, "agent": {
             "max_iterations": max_iterations, "rollouts": 24, "learning_epochs": 5,
             "mini_batches": 4, "learning_rate": 1e-3, "desired_kl": 0.01,
             "entropy_loss_scale": 0.01, "value_loss_scale": 1.0, "hidden_sizes": VELOCITY_NETWORK,
-            "activation": "elu", "normalize_obs": False, "normalize_value": False},
-            "warp": gpu},
+            "activation": "elu", "normalize_obs": False, "normalize_value": False}},
         "sb3": {**env, "agent": {
             "max_iterations": max_iterations, "n_steps": 24, "batch_size": num_envs * 24 // 4,
             "n_epochs": 5, "learning_rate": 5e-4, "ent_coef": 0.01, "vf_coef": 1.0,
             "max_grad_norm": 1.0, "net_arch": VELOCITY_NETWORK, "activation": "elu",
-            "normalize_obs": False},
-            "warp": {"env": gpu["env"], "agent": {**gpu["agent"], "batch_size": 4096 * 24 // 4}}},
-    }
-    return defaults
+            "normalize_obs": False}},
+    }, max_iterations=300, steps=24)
 
 
 @hookimpl
