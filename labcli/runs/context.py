@@ -21,7 +21,7 @@ from labcli.envs import metrics, mjwarnings
 from labcli.errors import LabError, TrainingDiverged
 from labcli.plugins.config import AgentConfig
 from labcli.plugins.framework import Actor, Checkpoint, Framework, Save, StopTraining, TrainContext
-from labcli.runs import checkpoints, interrupt, snapshot
+from labcli.runs import checkpoints, interrupt, loading, snapshot
 from labcli.runs.lastgood import LastGood
 from labcli.runs.progress import TrainProgress
 
@@ -207,8 +207,8 @@ class RunContext(TrainContext):
         obs = self.env.observations()
         try:
             # Policies load onto the CPU (portable checkpoints); the env may be on a GPU.
-            policy = self.framework.load_policy(checkpoint, self.env, self.cfg).to(self.env.device)
-            policy.clip = clip = self.env.clip_actions
+            policy = loading.load(self.framework, checkpoint, self.env, self.cfg).to(
+                self.env.device)
             with torch.no_grad():
                 actions = policy(obs)
                 live = None if self._actor is None else self._actor(obs)
@@ -219,7 +219,7 @@ class RunContext(TrainContext):
                                  "inf) after this iteration's update", candidate_proven=False)
         if live is not None:
             self._compare(checkpoint, actions,
-                          torch.as_tensor(live).to(actions).clamp(-clip, clip))
+                          torch.as_tensor(live).to(actions).clamp(-policy.clip, policy.clip))
 
     def _compare(self, checkpoint: Path, actions: torch.Tensor, live: torch.Tensor) -> None:
         """The Policy of `checkpoint` must act as the agent that was saved in it."""

@@ -5,6 +5,7 @@ not fit the env's sizes or whose weights are not finite."""
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Any
 
 import torch
@@ -18,11 +19,18 @@ DAMAGED = (TypeError, ValueError, KeyError, IndexError, AttributeError, RuntimeE
            OverflowError, MemoryError)
 
 
+def load(fw: Framework, path: Path, env: Any, cfg: Any) -> Policy:
+    """The framework's Policy of the checkpoint at `path`, clipped as `env` clips actions: the
+    bound is the task's, not the library's."""
+    policy = fw.load_policy(path, env, cfg)
+    policy.clip = env.clip_actions
+    return policy
+
+
 def policy_of(fw: Framework, checkpoint: Checkpoint, env: Any, cfg: Any) -> Policy:
     path = checkpoint.path
     try:
-        policy = fw.load_policy(path, env, cfg)
-        policy.clip = env.clip_actions
+        policy = load(fw, path, env, cfg)
     except DAMAGED as exc:
         raise LabError(f"checkpoint {path} is not a loadable {fw.name} checkpoint: "
                        f"{type(exc).__name__}: {first_line(exc)}", "pick another checkpoint"
