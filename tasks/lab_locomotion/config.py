@@ -1,6 +1,8 @@
-"""Ant and Humanoid as Isaac Lab's `Isaac-Ant-v0` / `Isaac-Humanoid-v0` define them: run
-toward a target 1 km ahead; observations, reward terms and weights, resets and terminations as
-theirs (classic/{ant,humanoid}/*_env_cfg.py). Set any of it with `--set env.<group>.<term>...`."""
+"""The locomotion tasks' configs, as Isaac Lab defines them: Ant and Humanoid
+(`Isaac-Ant-v0` / `Isaac-Humanoid-v0`: run toward a target 1 km ahead; classic/{ant,humanoid}/
+*_env_cfg.py) and the Go1 on flat ground (`Isaac-Velocity-Flat-Unitree-Go1-v0`: track velocity
+commands). Observations, reward terms and weights, resets and terminations as theirs; set any
+of it with `--set env.<group>.<term>...`."""
 
 from __future__ import annotations
 

@@ -110,7 +110,6 @@ def ang_vel_xy_l2(task: RobotTask, cfg: c.AngVelXYL2) -> torch.Tensor:
     return task.robot.root_ang_vel_b[:, :2].square().sum(dim=1)
 
 
-
 class track_lin_vel_xy_exp:  # noqa: N801
     def __init__(self, task: RobotTask, cfg: c.TrackLinVelXYExp):
         self.command, self.robot = task.command(cfg.command), task.robot

@@ -116,8 +116,7 @@ class CpuSim(Sim):
         # One MjModel per env where a field differs per env (rollout takes one per env).
         self._models = ([copy.copy(model) for _ in range(num_envs)] if per_env_fields
                         else [model] * num_envs)
-        self._fields = {name: torch.from_numpy(np.stack([getattr(m, name) for m in
-                                                         self._models[:1]] * num_envs))
+        self._fields = {name: torch.from_numpy(np.stack([getattr(model, name)] * num_envs))
                         for name in per_env_fields}
         pool = self.nthread if self.nthread > 2 else 0  # 0: on the calling thread
         self._mine = rollout.Rollout(nthread=pool)
