@@ -15,7 +15,7 @@ class SkrlPPOConfig(AgentConfig):
     resumable: ClassVar[frozenset[str]] = AgentConfig.resumable | {
         "learning_rate", "learning_epochs", "mini_batches", "discount_factor", "gae_lambda",
         "ratio_clip", "value_clip", "entropy_loss_scale", "value_loss_scale", "grad_norm_clip",
-        "reward_scale", "desired_kl"}
+        "reward_scale", "desired_kl", "cuda_graph"}
 
     rollouts: int = Field(16, gt=0, description="steps per env per iteration")
     learning_epochs: int = Field(8, gt=0)
@@ -37,6 +37,8 @@ class SkrlPPOConfig(AgentConfig):
     normalize_obs: bool = True
     normalize_value: bool = True
     clip_obs: float = Field(5.0, gt=0, description="normalized observations are clipped to ±this")
+    cuda_graph: bool = Field(True, description="on a GPU, replay each update's mini-batch "
+                             "steps as one CUDA graph (false: skrl's own update)")
 
     def check(self, num_envs: int) -> None:
         samples = self.rollouts * num_envs

@@ -14,7 +14,7 @@ from typing import Any
 import gymnasium as gym
 import torch
 from skrl.agents.torch import ExperimentCfg
-from skrl.agents.torch.ppo import PPO, PPO_CFG
+from skrl.agents.torch.ppo import PPO_CFG
 from skrl.memories.torch import RandomMemory
 from skrl.models.torch import DeterministicMixin, GaussianMixin, Model
 from skrl.resources.preprocessors.torch import RunningStandardScaler
@@ -23,6 +23,7 @@ from torch import nn
 
 from lab_skrl.adapter import SkrlEnv
 from lab_skrl.config import SkrlPPOConfig
+from lab_skrl.ppo import LabSkrlPPO
 from labcli.errors import LabError, first_line
 from labcli.plugins.framework import Framework, TrainContext
 from labcli.plugins.policy import (
@@ -87,7 +88,7 @@ class _ScaleRewards:
         return rewards * self.scale
 
 
-def make_agent(cfg: SkrlPPOConfig, env: SkrlEnv, device: str, run_dir: Path) -> PPO:
+def make_agent(cfg: SkrlPPOConfig, env: SkrlEnv, device: str, run_dir: Path) -> LabSkrlPPO:
     obs_space, act_space = env.observation_space, env.action_space
     models = {
         "policy": Actor(obs_space, act_space, device, cfg.hidden_sizes, cfg.activation,
@@ -119,8 +120,9 @@ def make_agent(cfg: SkrlPPOConfig, env: SkrlEnv, device: str, run_dir: Path) -> 
                                  write_interval=0, checkpoint_interval=0),
     )
     memory = RandomMemory(memory_size=cfg.rollouts, num_envs=env.num_envs, device=device)
-    agent = PPO(models=models, memory=memory, observation_space=obs_space,
-                action_space=act_space, device=device, cfg=ppo_cfg)
+    agent = LabSkrlPPO(models=models, memory=memory, observation_space=obs_space,
+                       action_space=act_space, device=device, cfg=ppo_cfg,
+                       cuda_graph=cfg.cuda_graph)
     agent.init()
     return agent
 
@@ -135,8 +137,7 @@ class SkrlFramework(Framework):
             load_agent(agent, saved, ctx.resume.path)
             steps = saved[META]["steps"]
             if "learning_rate" in ctx.changed:  # the optimizer came back with the old one
-                for group in agent.optimizer.param_groups:
-                    group["lr"] = cfg.learning_rate
+                agent.set_learning_rate(cfg.learning_rate)
         meta = {
             "observation_size": _size(env.observation_space),
             "action_size": _size(env.action_space),
@@ -187,14 +188,14 @@ class SkrlFramework(Framework):
         return Policy(actor.net, normalizer).eval()
 
 
-def _act(agent: PPO, obs: torch.Tensor) -> torch.Tensor:
+def _act(agent: LabSkrlPPO, obs: torch.Tensor) -> torch.Tensor:
     """The policy's mean action, through skrl's own (frozen) observation preprocessor."""
     with torch.no_grad():
         inputs = {"observations": agent._observation_preprocessor(obs)}
         return agent.policy.compute(inputs, role="policy")[0]
 
 
-def _collect_and_update(agent: PPO, env: SkrlEnv, obs: torch.Tensor, ctx: TrainContext,
+def _collect_and_update(agent: LabSkrlPPO, env: SkrlEnv, obs: torch.Tensor, ctx: TrainContext,
                         iteration: int) -> torch.Tensor:
     """One rollout of `cfg.rollouts` steps; skrl updates inside the last `post_interaction`.
     Returns the next observations."""
@@ -220,7 +221,7 @@ def _collect_and_update(agent: PPO, env: SkrlEnv, obs: torch.Tensor, ctx: TrainC
     return obs
 
 
-def _pop_tracking(agent: PPO) -> dict[str, float]:
+def _pop_tracking(agent: LabSkrlPPO) -> dict[str, float]:
     """skrl's own figures (losses, policy std, learning rate), averaged over the iteration."""
     scalars = {tag.replace(" / ", "/"): float(sum(values) / len(values))
                for tag, values in agent.tracking_data.items() if values}
@@ -238,7 +239,7 @@ def read_checkpoint(path: Path) -> dict[str, Any]:
     return saved
 
 
-def load_agent(agent: PPO, saved: dict[str, Any], path: Path) -> None:
+def load_agent(agent: LabSkrlPPO, saved: dict[str, Any], path: Path) -> None:
     """Restore models, optimizer (with its learning rate) and preprocessors."""
     for name, module in agent.checkpoint_modules.items():
         if name not in saved:
