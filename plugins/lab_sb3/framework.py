@@ -156,7 +156,9 @@ def _act(model: PPO, callback: _LabCallback, obs: torch.Tensor) -> np.ndarray:
 
 def policy_kwargs(cfg: Sb3PPOConfig) -> dict[str, Any]:
     return {"net_arch": list(cfg.net_arch), "activation_fn": ACTIVATIONS[cfg.activation],
-            "log_std_init": cfg.log_std_init}
+            "log_std_init": cfg.log_std_init,
+            # SB3's Adam (its eps), stepping all parameters in one fused kernel
+            "optimizer_kwargs": {"eps": 1e-5, "fused": True}}
 
 
 def normalizer_path(checkpoint: Path) -> Path:
