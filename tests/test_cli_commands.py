@@ -84,8 +84,8 @@ def test_config_show_is_a_config_file_train_reproduces(tmp_path):
 
 
 @pytest.mark.parametrize("backend, expected", [
-    ("cpu", {"num_envs": 128, "num_steps_per_env": 32, "num_learning_epochs": 8,
-             "num_mini_batches": 8}),
+    ("cpu", {"num_envs": 128, "num_steps_per_env": 32, "num_learning_epochs": 5,
+             "num_mini_batches": 4}),
     ("warp", {"num_envs": 4096, "num_steps_per_env": 24, "num_learning_epochs": 5,
               "num_mini_batches": 4}),
 ])
