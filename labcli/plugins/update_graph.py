@@ -19,18 +19,17 @@ from torch import nn
 Key = tuple[nn.Module, str]
 
 
-def fused_adam(optimizer: torch.optim.Optimizer) -> None:
-    """The library's Adam, changed in place to step all parameters in one fused kernel: on the
-    CPU its per-parameter loop was ~1 ms of RSL-RL's ~5 ms cartpole mini-batch step. Also after
-    `load_state_dict`, which brings back the saved settings."""
+def adapt_adam(optimizer: torch.optim.Optimizer, lr: torch.Tensor | None = None) -> None:
+    """The library's Adam, changed in place to step all parameters in one fused kernel (on the
+    CPU its per-parameter loop was ~1 ms of RSL-RL's ~5 ms cartpole mini-batch step); given
+    `lr`, a device tensor, also to read its learning rate from there (set to the optimizer's
+    own) and to be capturable, for `UpdateGraph`. Again after `load_state_dict`, which brings
+    back the saved, eager settings."""
     for group in optimizer.param_groups:
         group.update(fused=True, foreach=None)
-
-
-def device_adam(optimizer: torch.optim.Optimizer, lr: torch.Tensor) -> None:
-    """The library's Adam, changed in place to read its learning rate from `lr` (a device
-    tensor) and to be capturable (fused, capturable). Also after `load_state_dict`."""
-    fused_adam(optimizer)
+    if lr is None:
+        return
+    lr.fill_(float(optimizer.param_groups[0]["lr"]))
     for group in optimizer.param_groups:
         group.update(lr=lr, capturable=True)
     for entry in optimizer.state.values():
@@ -39,7 +38,7 @@ def device_adam(optimizer: torch.optim.Optimizer, lr: torch.Tensor) -> None:
 
 
 def eager_adam_state(state: dict[str, Any]) -> dict[str, Any]:
-    """A `device_adam`'s state dict as an eager Adam's, so that a checkpoint resumes on any
+    """An `adapt_adam`'s state dict as an eager Adam's, so that a checkpoint resumes on any
     device and with the library's own update."""
     groups = [{**group, "lr": float(group["lr"]), "capturable": False, "fused": None}
               for group in state["param_groups"]]

@@ -17,12 +17,7 @@ from rsl_rl.algorithms import PPO
 from tensordict import TensorDict
 from torch import nn
 
-from labcli.plugins.update_graph import (
-    UpdateGraph,
-    device_adam,
-    eager_adam_state,
-    fused_adam,
-)
+from labcli.plugins.update_graph import UpdateGraph, adapt_adam, eager_adam_state
 
 
 class LabPPO(PPO):
@@ -39,21 +34,15 @@ class LabPPO(PPO):
         self._batch: dict[str, Any] = {}
         self.fused = isinstance(self.optimizer, torch.optim.Adam)
         if self.graphed:
-            self._lr = torch.tensor(float(self.learning_rate), device=self.device)
+            self._lr = torch.zeros((), device=self.device)
             self._sums = torch.zeros(3, device=self.device)  # value, surrogate, entropy
             self._graph = UpdateGraph(self._steps, self.optimizer, [self.actor, self.critic],
                                       [self._lr])
         self._adapt_adam()
 
     def _adapt_adam(self) -> None:
-        """Adam fused, or the graph's device Adam; again after a load, which brings back the
-        saved (eager) settings."""
-        if self.graphed:
-            self._lr.fill_(float(self.optimizer.param_groups[0]["lr"]))
-            device_adam(self.optimizer, self._lr)
-            self.learning_rate = float(self._lr)
-        elif self.fused:
-            fused_adam(self.optimizer)
+        if self.fused:
+            adapt_adam(self.optimizer, self._lr if self.graphed else None)
 
     def set_learning_rate(self, lr: float) -> None:
         self.learning_rate = lr

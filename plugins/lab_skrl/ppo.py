@@ -24,12 +24,7 @@ from skrl.agents.torch.ppo.ppo import compute_gae
 from skrl.resources.schedulers.torch import KLAdaptiveLR
 from torch import nn
 
-from labcli.plugins.update_graph import (
-    UpdateGraph,
-    device_adam,
-    eager_adam_state,
-    fused_adam,
-)
+from labcli.plugins.update_graph import UpdateGraph, adapt_adam, eager_adam_state
 
 
 class LabSkrlPPO(PPO):
@@ -58,13 +53,7 @@ class LabSkrlPPO(PPO):
             self.checkpoint_modules["optimizer"] = _AdamState(self)
 
     def _adapt_adam(self) -> None:
-        """Adam fused, or the graph's device Adam; again after a load, which brings back the
-        saved (eager) settings."""
-        if self.graphed:
-            self._lr.fill_(float(self.optimizer.param_groups[0]["lr"]))
-            device_adam(self.optimizer, self._lr)
-        else:
-            fused_adam(self.optimizer)
+        adapt_adam(self.optimizer, self._lr if self.graphed else None)
 
     def set_learning_rate(self, lr: float) -> None:
         if self.graphed:
