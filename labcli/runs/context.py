@@ -7,7 +7,7 @@ SIGINT/SIGTERM into a stop at the next env step (`StopAtRequest`)."""
 from __future__ import annotations
 
 import time
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -33,6 +33,8 @@ DIVERGED_HINT = ("lower agent.learning_rate (or raise its clipping) and resume f
 # built-ins are 6e-8 apart or less; a constant actor or a normalizer handed the std as the
 # variance were 0.22 and 0.04 apart after two tiny cartpole iterations.
 POLICY_TOLERANCE = 1e-4
+# on_iteration(iteration, steps, figures) -> stop?
+IterationHook = Callable[[int, int, Mapping[str, float]], bool]
 
 
 class StopAtRequest(gym.vector.VectorWrapper):
@@ -72,6 +74,9 @@ class RunContext(TrainContext):
     stop: interrupt.StopRequest = field(default_factory=interrupt.StopRequest)
     mujoco_warnings: mjwarnings.WarningCounter = field(default_factory=mjwarnings.WarningCounter)
     changed: frozenset[str] = frozenset()
+    # Told each iteration's figures (a sweep reports them to its scheduler); True stops the run
+    # as a signal would: checkpointed, state 'interrupted', resumable.
+    on_iteration: IterationHook | None = None
     iteration: int = 0
     steps: int = 0
     last_stats: dict[str, float] = field(default_factory=dict)
@@ -137,6 +142,8 @@ class RunContext(TrainContext):
             self.writer.add_scalar(tag, value, steps)
         self.progress.update(iteration, steps_per_s, self.last_stats.get(metrics.MEAN_RETURN),
                              self.last_stats.get(metrics.SUCCESS_RATE))
+        if self.on_iteration is not None and self.on_iteration(iteration, steps, figures):
+            self.stop.request()
         last = iteration >= self.cfg.max_iterations
         if last or self.stop_requested or iteration % self.cfg.save_interval == 0:
             self.save(save)

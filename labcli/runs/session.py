@@ -31,7 +31,7 @@ from labcli.plugins.config import AgentConfig
 from labcli.plugins.framework import Checkpoint, Framework, StopTraining
 from labcli.runs import checkpoints, config, interrupt, loading, rundir, snapshot
 from labcli.runs import video as videos
-from labcli.runs.context import RunContext, StopAtRequest
+from labcli.runs.context import IterationHook, RunContext, StopAtRequest
 from labcli.runs.plan import TrainPlan
 from labcli.runs.progress import TrainProgress
 from labcli.runs.video import VideoSettings
@@ -66,17 +66,18 @@ def check_device(device: str | None, backend: str | None = None) -> str:
 
 
 def run(plan: TrainPlan, stop: interrupt.StopRequest, console: Console,
-        command: list[str] | None = None) -> TrainOutcome:
+        command: list[str] | None = None,
+        on_iteration: IterationHook | None = None) -> TrainOutcome:
     """Build what `plan` says and train; nothing is written before the env and the checkpoint
     to resume from are known to work, and a resumed run is held against a second writer."""
     if plan.run is None:
-        return _run(plan, stop, console, command)
+        return _run(plan, stop, console, command, on_iteration)
     with rundir.writing(plan.run):
-        return _run(plan, stop, console, command)
+        return _run(plan, stop, console, command, on_iteration)
 
 
 def _run(plan: TrainPlan, stop: interrupt.StopRequest, console: Console,
-         command: list[str] | None) -> TrainOutcome:
+         command: list[str] | None, on_iteration: IterationHook | None) -> TrainOutcome:
     fw = plan.framework.load()
     device = check_device(plan.device, plan.backend)
     env_cfg, agent_cfg, run_ = plan.env_cfg, plan.agent_cfg, plan.run
@@ -102,8 +103,9 @@ def _run(plan: TrainPlan, stop: interrupt.StopRequest, console: Console,
             run_ = rundir.create(plan.logs_dir, fw.name, plan.spec.name, plan.run_name)
             with rundir.writing(run_):
                 return _start(plan, fw, env, run_, resume_state, before, stop, device, console,
-                              command)
-        return _start(plan, fw, env, run_, resume_state, before, stop, device, console, command)
+                              command, on_iteration)
+        return _start(plan, fw, env, run_, resume_state, before, stop, device, console, command,
+                      on_iteration)
     finally:
         env.close()
 
@@ -153,7 +155,7 @@ def _previous(run: rundir.Run | None) -> dict[str, Any]:
 def _start(plan: TrainPlan, fw: Framework, env: Any, run_: rundir.Run,
            resume_state: dict[str, Any] | None, before: dict[str, Any],
            stop: interrupt.StopRequest, device: str, console: Console,
-           command: list[str] | None) -> TrainOutcome:
+           command: list[str] | None, on_iteration: IterationHook | None) -> TrainOutcome:
     """Write the run dir's files (the params this session trains with, its command, the
     manifest with every session so far), then train."""
     env_cfg, agent_cfg = plan.env_cfg, plan.agent_cfg
@@ -190,7 +192,7 @@ def _start(plan: TrainPlan, fw: Framework, env: Any, run_: rundir.Run,
     changed = frozenset(key.removeprefix("agent.") for key in plan.changes
                         if key.startswith("agent."))
     return _run_training(fw, env, agent_cfg, run_, plan.resume, resume_state, stop, device,
-                         pipeline, console, earlier_wall, changed)
+                         pipeline, console, earlier_wall, changed, on_iteration)
 
 
 def _versions(library: str, fw_provider: registry.Provider) -> dict[str, str]:
@@ -260,15 +262,16 @@ def _writer_thread_quiet() -> Iterator[None]:
 def _run_training(fw: Framework, env: Any, cfg: AgentConfig, run: rundir.Run,
                   resume: Checkpoint | None, resume_state: dict[str, Any] | None,
                   stop: interrupt.StopRequest, device: str, pipeline: list[wrappers.Step],
-                  console: Console, earlier_wall: float,
-                  changed: frozenset[str]) -> TrainOutcome:
+                  console: Console, earlier_wall: float, changed: frozenset[str],
+                  on_iteration: IterationHook | None) -> TrainOutcome:
     description = f"{fw.name} · {env.task_spec.name} · {env.num_envs} envs"
     writer = SummaryWriter(log_dir=str(run.dir))
     progress = TrainProgress(cfg.max_iterations, description, console,
                              start=resume.iteration if resume else 0)
     ctx = RunContext(cfg=cfg, env=env, framework=fw, run_dir=run.dir, seed=cfg.seed,
                      device=device, progress=progress, writer=writer, resume=resume,
-                     resume_state=resume_state, stop=stop, changed=changed)
+                     resume_state=resume_state, stop=stop, changed=changed,
+                     on_iteration=on_iteration)
     t0 = time.perf_counter()
 
     def summary_of(state: str) -> dict[str, Any]:

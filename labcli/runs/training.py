@@ -16,6 +16,7 @@ from labcli.runs.plan import plan
 from labcli.runs.video import VideoSettings
 
 if TYPE_CHECKING:
+    from labcli.runs.context import IterationHook
     from labcli.runs.session import TrainOutcome
 
 
@@ -25,9 +26,12 @@ def train(task: str, framework: str, *, num_envs: int | None = None, seed: int |
           overrides: Sequence[str] = (), config_file: Path | None = None,
           checkpoint: str | None = None, logs_dir: Path | None = None,
           console: Console | None = None, command: Sequence[str] | None = None,
-          video: VideoSettings | None = None) -> TrainOutcome:
+          video: VideoSettings | None = None,
+          on_iteration: IterationHook | None = None) -> TrainOutcome:
     """Train `task` with `framework`; everything is validated before anything is written. With
-    `video`, env 0 is recorded into <run dir>/videos/train/."""
+    `video`, env 0 is recorded into <run dir>/videos/train/. `on_iteration(iteration, steps,
+    figures)` is told every iteration's logged figures; returning True stops the run as Ctrl-C
+    would (checkpointed, state 'interrupted')."""
     console = console or Console(stderr=True)
     # A signal lab's console script recorded while this command started counts as the first.
     with interrupt.deferred(interrupt.StopRequest(interrupt.startup.signum)) as stop:
@@ -43,4 +47,4 @@ def train(task: str, framework: str, *, num_envs: int | None = None, seed: int |
         from labcli.runs import session
 
         return session.run(the_plan, stop, console,
-                           list(command) if command is not None else None)
+                           list(command) if command is not None else None, on_iteration)
