@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import signal
+import sys
 from typing import Annotated
 
 import typer
@@ -42,6 +43,15 @@ def train(
     video_interval: Annotated[int, typer.Option(
         help="Env steps from one video's start to the next.")] = 2000,
     logs_dir: LogsDir = None,
+    nproc: Annotated[int | None, typer.Option(
+        help="Data-parallel ranks on this host, each with --num-envs envs (rsl_rl, skrl); the "
+             "same as torchrun --nproc-per-node N -m labcli train ...")] = None,
+    nnodes: Annotated[str | None, typer.Option(
+        help="With --nproc: hosts taking part, N or MIN:MAX (run the command on each).")] = None,
+    rdzv_endpoint: Annotated[str | None, typer.Option(
+        help="With --nnodes: HOST:PORT where the hosts' ranks meet.")] = None,
+    rdzv_id: Annotated[str | None, typer.Option(
+        help="With --nnodes: the same id on every host of one run.")] = None,
 ) -> None:
     """Train a policy; the run goes to logs/<framework>/<task>/<time>/.
 
@@ -51,11 +61,19 @@ def train(
     from labcli.runs import video as videos
 
     settings = videos.VideoSettings(video_length, video_interval) if video else None
-    outcome = training.train(
-        task, framework, num_envs=num_envs, seed=seed, max_iterations=max_iterations,
-        device=device, backend=backend, run_name=run_name, overrides=set_ or [],
-        config_file=config_file, checkpoint=checkpoint, logs_dir=logs_dir, console=err(),
-        video=settings)
+    options = dict(num_envs=num_envs, seed=seed, max_iterations=max_iterations, device=device,
+                   backend=backend, run_name=run_name, overrides=set_ or [],
+                   config_file=config_file, checkpoint=checkpoint, logs_dir=logs_dir,
+                   video=settings)
+    if (nproc, nnodes, rdzv_endpoint, rdzv_id) != (None, None, None, None):
+        from labcli.runs.launcher import Launch
+
+        launch = Launch(1 if nproc is None else nproc, nnodes or "1", rdzv_endpoint, rdzv_id)
+        raise typer.Exit(training.launch(launch, sys.argv[1:], task, framework, console=err(),
+                                         **options))
+    outcome = training.train(task, framework, console=err(), **options)
+    if not outcome.ranks.writer:
+        return  # rank 0 says how the run went
     s = outcome.summary
     figures = [f"{s['state']}", f"{s['iterations']} iterations", f"{s['steps']:,} steps",
                f"{s['wall_time_s']:.1f} s"]

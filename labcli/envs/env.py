@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import gymnasium as gym
@@ -27,6 +27,8 @@ UNSTABLE = "unstable"
 # The info key of lab's episode figures: gymnasium's RecordEpisodeStatistics owns "episode".
 EPISODE = "lab_episode"
 AUTORESET_MODES = (AutoresetMode.SAME_STEP, AutoresetMode.NEXT_STEP)
+# Totals of episode figures in, their sums over the ranks of a data-parallel run out.
+Reduce = Callable[[torch.Tensor], torch.Tensor]
 
 
 class LabVecEnv(gym.vector.VectorEnv):
@@ -319,10 +321,11 @@ class LabVecEnv(gym.vector.VectorEnv):
             rows.copy_(figure)
         self._stats.addmv_(self._ended, self._ended_figures[0])
 
-    def pop_stats(self) -> dict[str, float]:
+    def pop_stats(self, reduce: Reduce | None = None) -> dict[str, float]:
         """Means over the episodes that ended since the last call, under `metrics` tags; empty
-        when none ended. One host sync: call it once per training iteration, not per step."""
-        values = self._stats.tolist()
+        when none ended. One host sync: call it once per training iteration, not per step.
+        `reduce` sums the figures' totals over several envs' (data-parallel ranks) first."""
+        values = (self._stats if reduce is None else reduce(self._stats)).tolist()
         self._stats.zero_()
         overflows = {metrics.OVERFLOW + name: n for name, n in self.sim.pop_overflows().items()}
         count = values[0]

@@ -16,6 +16,7 @@ from gymnasium.vector.utils import batch_space
 
 from labcli.envs import metrics
 from labcli.envs.config import GymConfig
+from labcli.envs.env import Reduce
 from labcli.envs.gym_spec import BACKEND, GymTaskSpec
 from labcli.envs.render.scene import render_error, unavailable
 from labcli.errors import LabError, first_line
@@ -181,10 +182,13 @@ class GymVecEnv(gym.vector.VectorEnv):
         stats["success"] += float(episode["success"][mask].sum())
         stats[TERMINATED] += float((terminated & done).sum())
 
-    def pop_stats(self) -> dict[str, float]:
+    def pop_stats(self, reduce: Reduce | None = None) -> dict[str, float]:
         """Means over the episodes that ended since the last call, as LabVecEnv's; the success
         rate only where the id has a reward threshold."""
         stats, self._stats = self._stats, self._zero_stats()
+        if reduce is not None:
+            totals = reduce(torch.tensor(list(stats.values()), dtype=torch.float64))
+            stats = dict(zip(stats, totals.tolist(), strict=True))
         count = stats["episodes"]
         out = {metrics.NONFINITE_ACTIONS: stats["nonfinite"]} if stats["nonfinite"] else {}
         if count == 0:

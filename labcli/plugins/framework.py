@@ -65,6 +65,9 @@ class FrameworkSpec:
     task_defaults: Mapping[str, Mapping[str, Mapping[str, Any]]] = field(default_factory=dict)
     checkpoint_prefix: str = "model_"
     checkpoint_suffix: str = ".pt"
+    # Trains on several ranks (torchrun, `lab train --nproc`): the library averages gradients
+    # over torch.distributed's default group and keeps its normalizers equal on every rank.
+    data_parallel: bool = False
 
     @functools.cached_property
     def agent_config_class(self) -> type:
@@ -152,7 +155,13 @@ class TrainContext(abc.ABC):
     # values; apply them over what the checkpoint restores (an optimizer's saved learning rate).
     changed: frozenset[str]
     iteration: int  # iterations done, counted on from a resumed checkpoint
-    steps: int  # env steps done, likewise
+    steps: int  # env steps done, likewise (of all ranks)
+    # A data-parallel run: this process's rank among `world_size`. torch.distributed's default
+    # process group is set up (gloo on the CPU, NCCL on GPUs) before the framework's code is
+    # imported; each rank trains on its own `env`. Only rank 0 writes: elsewhere `writer` drops
+    # what it is given and `save` writes nothing (but must still be called on every rank).
+    rank: int
+    world_size: int
     # Figures whose names are the TensorBoard tags of labcli.envs.metrics.
     last_stats: Mapping[str, float]
 
@@ -183,11 +192,11 @@ class TrainContext(abc.ABC):
     @abc.abstractmethod
     def end_iteration(self, iteration: int, steps: int, save: Save,
                       scalars: Mapping[str, float] | None = None) -> bool:
-        """After each rollout + update: `iteration` and `steps` done so far, counted on from a
-        resumed checkpoint; `scalars` are the library's own figures (losses) by TensorBoard tag.
-        Logs the common figures, updates progress, checkpoints through `save` when due. Returns
-        True when training must end now: `max_iterations` is reached or a stop was requested;
-        the checkpoint is written then."""
+        """After each rollout + update: `iteration` and `steps` (this rank's env's) done so
+        far, counted on from a resumed checkpoint; `scalars` are the library's own figures
+        (losses) by TensorBoard tag. Logs the common figures, updates progress, checkpoints
+        through `save` when due. Returns True when training must end now: `max_iterations` is
+        reached or a stop was requested (on any rank); the checkpoint is written then."""
 
     @abc.abstractmethod
     def save(self, save: Save) -> None:

@@ -21,9 +21,10 @@ from labcli.envs import metrics, mjwarnings
 from labcli.errors import LabError, TrainingDiverged
 from labcli.plugins.config import AgentConfig
 from labcli.plugins.framework import Actor, Checkpoint, Framework, Save, StopTraining, TrainContext
-from labcli.runs import checkpoints, interrupt, loading, snapshot
+from labcli.runs import checkpoints, distributed, interrupt, loading, snapshot
 from labcli.runs.lastgood import LastGood
 from labcli.runs.progress import TrainProgress
+from labcli.runs.ranks import SINGLE, Ranks
 
 NONFINITE_NETWORKS = "its update left non-finite values (NaN or inf) in the agent's networks"
 DIVERGED_HINT = ("lower agent.learning_rate (or raise its clipping) and resume from the last good "
@@ -77,6 +78,9 @@ class RunContext(TrainContext):
     # Told each iteration's figures (a sweep reports them to its scheduler); True stops the run
     # as a signal would: checkpointed, state 'interrupted', resumable.
     on_iteration: IterationHook | None = None
+    # This process's place in a data-parallel run: only rank 0 writes (TensorBoard, progress,
+    # checkpoints, the hook above); every rank logs the figures of all ranks' envs.
+    ranks: Ranks = SINGLE
     iteration: int = 0
     steps: int = 0
     last_stats: dict[str, float] = field(default_factory=dict)
@@ -101,9 +105,18 @@ class RunContext(TrainContext):
             self.steps = self.saved_steps = self.resume_state["steps"]
         self._clock = (time.perf_counter(), self.steps)
         self.last_good = LastGood(self.run_dir, self.framework.spec)
-        # Left by a killed run: not this run's, never to be committed or published.
-        self.last_good.discard()
-        checkpoints.discard_staging(self.run_dir)
+        if self.ranks.writer:
+            # Left by a killed run: not this run's, never to be committed or published.
+            self.last_good.discard()
+            checkpoints.discard_staging(self.run_dir)
+
+    @property
+    def rank(self) -> int:
+        return self.ranks.rank
+
+    @property
+    def world_size(self) -> int:
+        return self.ranks.world_size
 
     @property
     def stop_requested(self) -> bool:
@@ -117,12 +130,13 @@ class RunContext(TrainContext):
 
     def end_iteration(self, iteration: int, steps: int, save: Save,
                       scalars: Mapping[str, float] | None = None) -> bool:
+        steps *= self.ranks.world_size  # each rank counts its own envs' steps
         now = time.perf_counter()
         t0, s0 = self._clock
         steps_per_s = (steps - s0) / max(now - t0, 1e-9)
         self._clock = (now, steps)
         self.iteration, self.steps = iteration, steps
-        stats = self.env.pop_stats()
+        stats = self.env.pop_stats(self._summed if self.ranks.active else None)
         if stats:
             self.last_stats = stats
         bad = stats.get(metrics.NONFINITE_ACTIONS, 0)
@@ -131,23 +145,30 @@ class RunContext(TrainContext):
                                  f"in {bad:.0f} env steps", candidate_proven=False)
         if not self.networks_finite():  # the candidate acted well; this update broke it
             raise self._diverged(iteration, NONFINITE_NETWORKS, candidate_proven=True)
-        self.last_good.promote()
         self._boundary = {"env": self.env.get_state(), "rng": snapshot.rng_state(),
                           "iteration": iteration, "steps": steps}
-        self.last_good.keep(iteration, self._boundary, save)
-        self._note_overflows(stats)
-        figures = {**stats, metrics.STEPS_PER_S: steps_per_s,
-                   metrics.MUJOCO_WARNINGS: self._pop_mujoco_warnings(), **(scalars or {})}
-        for tag, value in figures.items():
-            self.writer.add_scalar(tag, value, steps)
-        self.progress.update(iteration, steps_per_s, self.last_stats.get(metrics.MEAN_RETURN),
-                             self.last_stats.get(metrics.SUCCESS_RATE))
-        if self.on_iteration is not None and self.on_iteration(iteration, steps, figures):
-            self.stop.request()
+        if self.ranks.writer:
+            self.last_good.promote()
+            self.last_good.keep(iteration, self._boundary, save)
+            self._note_overflows(stats)
+            figures = {**stats, metrics.STEPS_PER_S: steps_per_s,
+                       metrics.MUJOCO_WARNINGS: self._pop_mujoco_warnings(), **(scalars or {})}
+            for tag, value in figures.items():
+                self.writer.add_scalar(tag, value, steps)
+            self.progress.update(iteration, steps_per_s,
+                                 self.last_stats.get(metrics.MEAN_RETURN),
+                                 self.last_stats.get(metrics.SUCCESS_RATE))
+            if self.on_iteration is not None and self.on_iteration(iteration, steps, figures):
+                self.stop.request()
+        if self.ranks.active and distributed.any_rank(self.stop_requested, self.device):
+            self.stop.request()  # all ranks stop after this iteration, however many were asked
         last = iteration >= self.cfg.max_iterations
         if last or self.stop_requested or iteration % self.cfg.save_interval == 0:
             self.save(save)
         return last or self.stop_requested
+
+    def _summed(self, totals: torch.Tensor) -> torch.Tensor:
+        return distributed.summed(totals, self.device)
 
     def watch(self, *networks: nn.Module) -> None:
         # Checked after each update, so that a diverged update stops training with a clear
@@ -169,7 +190,8 @@ class RunContext(TrainContext):
         return error
 
     def _diverged(self, iteration: int, what: str, candidate_proven: bool) -> TrainingDiverged:
-        self.last_good.commit(candidate_proven)
+        if self.ranks.writer:
+            self.last_good.commit(candidate_proven)
         return TrainingDiverged(f"iteration {iteration}: {what}; training stopped. "
                                 f"{self._last_good()}", DIVERGED_HINT)
 
@@ -200,12 +222,28 @@ class RunContext(TrainContext):
         if self.saved_iteration == self.iteration:
             return
         boundary = self._boundary
-        state = None
-        if boundary is not None and boundary["iteration"] == self.iteration:
-            state = snapshot.writer(self.iteration, boundary)
-        checkpoints.write(self.run_dir, self.framework.spec, self.iteration, save, state,
-                          check=self._check_policy)
+        if boundary is not None and boundary["iteration"] != self.iteration:
+            boundary = None
+        if self.ranks.active:
+            boundary = self._with_every_rank(boundary)
+        if self.ranks.writer:
+            state = snapshot.writer(self.iteration, boundary) if boundary is not None else None
+            checkpoints.write(self.run_dir, self.framework.spec, self.iteration, save, state,
+                              check=self._check_policy)
         self.saved_iteration, self.saved_steps = self.iteration, self.steps
+
+    def _with_every_rank(self, boundary: dict[str, Any] | None) -> dict[str, Any] | None:
+        """Rank 0's boundary with the other ranks' episodes and generators beside it (on rank
+        0; every rank takes part): a resume goes on with each rank's own."""
+        mine = None
+        if boundary is not None:
+            env = boundary["env"]
+            mine = {"env": None if env is None else {k: v.cpu() for k, v in env.items()},
+                    "rng": boundary["rng"]}
+        parts = distributed.gather_to_writer(self.ranks, mine)
+        if parts is None or boundary is None or any(part is None for part in parts):
+            return boundary
+        return {**boundary, "ranks": parts[1:]}
 
     def _check_policy(self, checkpoint: Path) -> None:
         # Loading builds networks, which draws random weights (SB3's even reseeds every

@@ -33,6 +33,7 @@ class TrainPlan:
     video: VideoSettings | None = None
     # What a resume changes: {"agent.learning_rate": (old, new), ...}, all of them resumable.
     changes: dict[str, tuple[Any, Any]] = field(default_factory=dict)
+    ranks: int = 1  # data-parallel processes, each with env_cfg.num_envs envs
 
     @property
     def new_run_parent(self) -> Path:
@@ -40,8 +41,12 @@ class TrainPlan:
 
     def describe(self) -> str:
         """One line: what is about to be trained, how big, and where a resume goes on."""
-        what = (f"{self.spec.name} with {self.framework.name}: {self.env_cfg.num_envs} envs, "
-                f"seed {self.agent_cfg.seed}")
+        n, seed = self.env_cfg.num_envs, self.agent_cfg.seed
+        envs, seeds = f"{n} envs", f"seed {seed}"
+        if self.ranks > 1:
+            envs = f"{self.ranks} ranks × {n} envs ({self.ranks * n} in all)"
+            seeds = f"seeds {seed} to {seed + self.ranks - 1}"
+        what = f"{self.spec.name} with {self.framework.name}: {envs}, {seeds}"
         if self.resume is None:
             return f"train {what}, {self.agent_cfg.max_iterations} iterations"
         changed = "".join(f", {key} {old!r} -> {new!r}"
@@ -71,12 +76,18 @@ def plan(task: str, framework: str, *, num_envs: int | None = None, seed: int | 
          backend: str | None = None, run_name: str | None = None,
          overrides: Sequence[str] = (), config_file: Path | None = None,
          checkpoint: str | None = None, logs_dir: Path | None = None,
-         video: VideoSettings | None = None) -> TrainPlan:
+         video: VideoSettings | None = None, ranks: int = 1) -> TrainPlan:
     """Resolve the task, the framework, the checkpoint to resume and the configs, or raise the
-    LabError that says what is wrong."""
+    LabError that says what is wrong. `ranks` > 1: one rank's share of a data-parallel run."""
     logs_dir = logs_dir or rundir.default_logs_dir()
     spec = registry.get_task(task)
     fw = registry.get_framework(framework)
+    if ranks > 1 and not fw.data_parallel:
+        reg = registry.loaded()
+        able = [name for name in reg.names(registry.FRAMEWORK)
+                if reg.get(registry.FRAMEWORK, name).data_parallel]
+        raise LabError(f"framework '{fw.name}' has no data-parallel training ({ranks} ranks "
+                       "asked for)", f"train it in one process, or use {' or '.join(able)}")
     if num_envs is not None and num_envs <= 0:
         raise LabError(f"--num-envs must be a positive integer, got {num_envs}")
     if run_name is not None:
@@ -107,4 +118,4 @@ def plan(task: str, framework: str, *, num_envs: int | None = None, seed: int | 
             f"checkpoint {resume.path.name} is at iteration {resume.iteration}, and max_iterations"
             f" is {agent_cfg.max_iterations}", "pass a larger --max-iterations to train further")
     return TrainPlan(spec, fw, env_cfg, agent_cfg, logs_dir, device, backend, run_name, run,
-                     resume, video, changes)
+                     resume, video, changes, ranks)

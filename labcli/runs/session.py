@@ -29,11 +29,12 @@ from labcli.errors import LabError
 from labcli.plugins import registry
 from labcli.plugins.config import AgentConfig
 from labcli.plugins.framework import Checkpoint, Framework, StopTraining
-from labcli.runs import checkpoints, config, interrupt, loading, rundir, snapshot
+from labcli.runs import checkpoints, config, distributed, interrupt, loading, rundir, snapshot
 from labcli.runs import video as videos
 from labcli.runs.context import IterationHook, RunContext, StopAtRequest
 from labcli.runs.plan import TrainPlan
 from labcli.runs.progress import TrainProgress
+from labcli.runs.ranks import SINGLE, Ranks
 from labcli.runs.video import VideoSettings
 
 
@@ -44,6 +45,7 @@ class TrainOutcome:
     # How far the checkpoints' Policies acted from the live agent at most (see
     # TrainContext.set_actor); None when the framework gave no actor.
     policy_difference: float | None = None
+    ranks: Ranks = SINGLE
 
 
 def check_device(device: str | None, backend: str | None = None) -> str:
@@ -66,48 +68,121 @@ def check_device(device: str | None, backend: str | None = None) -> str:
 
 
 def run(plan: TrainPlan, stop: interrupt.StopRequest, console: Console,
-        command: list[str] | None = None,
-        on_iteration: IterationHook | None = None) -> TrainOutcome:
+        command: list[str] | None = None, on_iteration: IterationHook | None = None,
+        ranks: Ranks = SINGLE) -> TrainOutcome:
     """Build what `plan` says and train; nothing is written before the env and the checkpoint
-    to resume from are known to work, and a resumed run is held against a second writer."""
-    if plan.run is None:
-        return _run(plan, stop, console, command, on_iteration)
-    with rundir.writing(plan.run):
-        return _run(plan, stop, console, command, on_iteration)
+    to resume from are known to work, and a resumed run is held against a second writer. In a
+    data-parallel run (`ranks`) this is one rank's share, and only rank 0 writes."""
+    device = distributed.device_of(ranks, check_device(plan.device, plan.backend))
+    # Before the library is imported: RSL-RL and skrl join a process group that exists.
+    with distributed.process_group(ranks, device):
+        session = _Session(plan, stop, console, command, on_iteration, ranks, device)
+        if plan.run is None or not ranks.writer:
+            return session.run()
+        with rundir.writing(plan.run):
+            return session.run()
 
 
-def _run(plan: TrainPlan, stop: interrupt.StopRequest, console: Console,
-         command: list[str] | None, on_iteration: IterationHook | None) -> TrainOutcome:
-    fw = plan.framework.load()
-    device = check_device(plan.device, plan.backend)
-    env_cfg, agent_cfg, run_ = plan.env_cfg, plan.agent_cfg, plan.run
-    # Before any simulation: a run that cannot be written must not cost a minute of start-up.
-    rundir.check_writable(run_.dir if run_ is not None else plan.new_run_parent)
-    before = _previous(run_)
+@dataclass
+class _Session:
+    plan: TrainPlan
+    stop: interrupt.StopRequest
+    console: Console
+    command: list[str] | None
+    on_iteration: IterationHook | None
+    ranks: Ranks
+    device: str
 
-    snapshot.seed_all(agent_cfg.seed)
-    env = make_env(plan.spec, env_cfg, backend=plan.backend, device=device, seed=agent_cfg.seed)
-    try:
-        _check_memory(agent_cfg, env, device)
-        resume_state = None
+    def run(self) -> TrainOutcome:
+        plan, ranks = self.plan, self.ranks
+        fw = plan.framework.load()
+        env_cfg, agent_cfg, run_ = plan.env_cfg, plan.agent_cfg, plan.run
+        if ranks.writer:
+            # Before any simulation: a run that cannot be written must not cost a minute of
+            # start-up.
+            rundir.check_writable(run_.dir if run_ is not None else plan.new_run_parent)
+        before = _previous(run_)
+
+        seed = agent_cfg.seed + ranks.rank  # each rank its own episodes and exploration
+        snapshot.seed_all(seed)
+        env = make_env(plan.spec, env_cfg, backend=plan.backend, device=self.device, seed=seed)
+        try:
+            _check_memory(agent_cfg, env, self.device)
+            resume_state = None
+            if plan.resume is not None:
+                # A corrupt, mismatched or NaN checkpoint fails here, before anything is written.
+                loading.policy_of(fw, plan.resume, env, agent_cfg)
+                resume_state = _resume_state(run_, plan.resume, env, env_cfg, self.console,
+                                             ranks)
+            wrappers.validate(_pipeline(fw, agent_cfg, self.video, None), fw.name)
+            if self.video is not None:
+                env.render()  # no GL, or an env that cannot render, fails before a run dir
+            if self.stop.requested and not ranks.active:
+                raise interrupt.before_run(self.stop)
+            if run_ is None and ranks.writer:
+                run_ = rundir.create(plan.logs_dir, fw.name, plan.spec.name, plan.run_name)
+                if ranks.active:
+                    distributed.broadcast_from_writer(str(run_.dir))
+                with rundir.writing(run_):
+                    return self._start(fw, env, run_, resume_state, before)
+            if run_ is None:  # the run dir rank 0 made: the others only read what it holds
+                run_ = rundir.Run(Path(distributed.broadcast_from_writer(None)))
+            return self._start(fw, env, run_, resume_state, before)
+        finally:
+            env.close()
+
+    @property
+    def video(self) -> VideoSettings | None:
+        return self.plan.video if self.ranks.writer else None
+
+    def _start(self, fw: Framework, env: Any, run_: rundir.Run,
+               resume_state: dict[str, Any] | None, before: dict[str, Any]) -> TrainOutcome:
+        """Write the run dir's files (the params this session trains with, its command, the
+        manifest with every session so far), then train."""
+        plan = self.plan
+        if self.ranks.writer:
+            self._write_session(fw, env, run_, before)
+        if resume_state is not None and resume_state["env"] is not None:
+            env.resume_from(resume_state["env"])
+        if self.video is not None:  # no link planted on the way: videos go into the run dir
+            files.real_dir(videos.folder(run_.dir, videos.TRAIN), below=run_.dir)
+        pipeline = _pipeline(fw, plan.agent_cfg, self.video, run_.dir)
+        earlier = before["summary"]
+        earlier_wall = earlier.get("total_wall_time_s", earlier.get("wall_time_s", 0.0))
+        changed = frozenset(key.removeprefix("agent.") for key in plan.changes
+                            if key.startswith("agent."))
+        return _run_training(fw, env, plan.agent_cfg, run_, plan.resume, resume_state,
+                             self.stop, self.device, pipeline, self.console, earlier_wall,
+                             changed, self.on_iteration, self.ranks)
+
+    def _write_session(self, fw: Framework, env: Any, run_: rundir.Run,
+                       before: dict[str, Any]) -> None:
+        plan, agent_cfg = self.plan, self.plan.agent_cfg
+        rundir.write_atomic(run_.dir, rundir.ENV_PARAMS, config.to_yaml(plan.env_cfg))
+        rundir.write_atomic(run_.dir, rundir.AGENT_PARAMS, config.to_yaml(agent_cfg))
+        argv = list(self.command) if self.command is not None else ["lab", *sys.argv[1:]]
+        rundir.write_atomic(run_.dir, rundir.COMMAND, shlex.join(argv) + "\n")
+        now = datetime.now().isoformat(timespec="seconds")
+        old = before["manifest"]
+        session = {"started": now, "command": shlex.join(argv)}
         if plan.resume is not None:
-            # A corrupt, mismatched or NaN checkpoint fails here, before anything is written.
-            loading.policy_of(fw, plan.resume, env, agent_cfg)
-            resume_state = _resume_state(run_, plan.resume, env, env_cfg, console)
-        wrappers.validate(_pipeline(fw, agent_cfg, plan.video, None), fw.name)
-        if plan.video is not None:
-            env.render()  # no GL, or an env that cannot render, fails before a run dir exists
-        if stop.requested:
-            raise interrupt.before_run(stop)
-        if run_ is None:
-            run_ = rundir.create(plan.logs_dir, fw.name, plan.spec.name, plan.run_name)
-            with rundir.writing(run_):
-                return _start(plan, fw, env, run_, resume_state, before, stop, device, console,
-                              command, on_iteration)
-        return _start(plan, fw, env, run_, resume_state, before, stop, device, console, command,
-                      on_iteration)
-    finally:
-        env.close()
+            session["resumed_from"] = plan.resume.path.name
+            session["changed"] = {key: [old_value, new] for key, (old_value, new)
+                                  in plan.changes.items()}
+        manifest = {
+            "task": plan.spec.name, "framework": fw.name, "seed": agent_cfg.seed,
+            "device": self.device, "backend": env.backend, "num_envs": env.num_envs,
+            "started": now, "first_started": old.get("first_started", old.get("started", now)),
+            **rundir.process_identity(), "state": rundir.RUNNING,
+            "versions": _versions(fw.spec.library,
+                                  registry.loaded().provider(registry.FRAMEWORK, fw.name)),
+            "sessions": [*old.get("sessions", []), session],
+        }
+        if self.ranks.active:  # num_envs is each rank's
+            manifest["ranks"] = self.ranks.world_size
+        if plan.resume is not None:
+            manifest["resumed_from"] = plan.resume.path.name
+        rundir.write_json(run_.dir, rundir.MANIFEST, manifest)
 
 
 def _check_memory(cfg: AgentConfig, env: Any, device: str) -> None:
@@ -152,49 +227,6 @@ def _previous(run: rundir.Run | None) -> dict[str, Any]:
     return {"manifest": run.manifest(), "summary": run.summary() or {}}
 
 
-def _start(plan: TrainPlan, fw: Framework, env: Any, run_: rundir.Run,
-           resume_state: dict[str, Any] | None, before: dict[str, Any],
-           stop: interrupt.StopRequest, device: str, console: Console,
-           command: list[str] | None, on_iteration: IterationHook | None) -> TrainOutcome:
-    """Write the run dir's files (the params this session trains with, its command, the
-    manifest with every session so far), then train."""
-    env_cfg, agent_cfg = plan.env_cfg, plan.agent_cfg
-    rundir.write_atomic(run_.dir, rundir.ENV_PARAMS, config.to_yaml(env_cfg))
-    rundir.write_atomic(run_.dir, rundir.AGENT_PARAMS, config.to_yaml(agent_cfg))
-    argv = list(command) if command is not None else ["lab", *sys.argv[1:]]
-    rundir.write_atomic(run_.dir, rundir.COMMAND, shlex.join(argv) + "\n")
-    now = datetime.now().isoformat(timespec="seconds")
-    old = before["manifest"]
-    session = {"started": now, "command": shlex.join(argv)}
-    if plan.resume is not None:
-        session["resumed_from"] = plan.resume.path.name
-        session["changed"] = {key: [old_value, new] for key, (old_value, new)
-                              in plan.changes.items()}
-    manifest = {
-        "task": plan.spec.name, "framework": fw.name, "seed": agent_cfg.seed,
-        "device": device, "backend": env.backend, "num_envs": env.num_envs,
-        "started": now, "first_started": old.get("first_started", old.get("started", now)),
-        **rundir.process_identity(), "state": rundir.RUNNING,
-        "versions": _versions(fw.spec.library,
-                              registry.loaded().provider(registry.FRAMEWORK, fw.name)),
-        "sessions": [*old.get("sessions", []), session],
-    }
-    if plan.resume is not None:
-        manifest["resumed_from"] = plan.resume.path.name
-    rundir.write_json(run_.dir, rundir.MANIFEST, manifest)
-    if resume_state is not None and resume_state["env"] is not None:
-        env.resume_from(resume_state["env"])
-    if plan.video is not None:  # no link planted on the way: videos go into the run dir
-        files.real_dir(videos.folder(run_.dir, videos.TRAIN), below=run_.dir)
-    pipeline = _pipeline(fw, agent_cfg, plan.video, run_.dir)
-    earlier = before["summary"]
-    earlier_wall = earlier.get("total_wall_time_s", earlier.get("wall_time_s", 0.0))
-    changed = frozenset(key.removeprefix("agent.") for key in plan.changes
-                        if key.startswith("agent."))
-    return _run_training(fw, env, agent_cfg, run_, plan.resume, resume_state, stop, device,
-                         pipeline, console, earlier_wall, changed, on_iteration)
-
-
 def _versions(library: str, fw_provider: registry.Provider) -> dict[str, str]:
     out = {"lab": __version__}
     for dist in ("mujoco", "torch", "gymnasium", library, fw_provider.dist):
@@ -205,15 +237,25 @@ def _versions(library: str, fw_provider: registry.Provider) -> dict[str, str]:
 
 
 def _resume_state(run: rundir.Run, resume: Checkpoint, env: Any, env_cfg: TaskConfig,
-                  console: Console) -> dict[str, Any] | None:
-    """The env and generator state saved with `resume`, or None (with a note saying what that
-    changes) when there is none or it cannot apply; a LabError when it is damaged."""
+                  console: Console, ranks: Ranks) -> dict[str, Any] | None:
+    """The env and generator state saved with `resume` (this rank's, in a data-parallel run),
+    or None (with a note saying what that changes) when there is none or it cannot apply; a
+    LabError when it is damaged."""
     path = snapshot.path_of(run.dir, resume.iteration)
     state = snapshot.load(path)
     if state is None:
         console.print(f"note: {resume.path.name} has no saved env and random-generator state; "
                       "the resumed run starts new episodes", highlight=False)
         return None
+    others = state.get("ranks", [])
+    if ranks.world_size != len(others) + 1:
+        console.print(f"note: {resume.path.name} was saved by {len(others) + 1} rank(s), not "
+                      f"{ranks.world_size}; ranks other than 0 start new episodes",
+                      highlight=False)
+        if ranks.rank > 0:
+            return None
+    elif ranks.rank > 0:
+        state = {**state, **others[ranks.rank - 1]}
     saved = state["env"]
     if saved is None:
         console.print(f"note: the env of {resume.path.name} cannot save its episodes; the "
@@ -263,25 +305,32 @@ def _run_training(fw: Framework, env: Any, cfg: AgentConfig, run: rundir.Run,
                   resume: Checkpoint | None, resume_state: dict[str, Any] | None,
                   stop: interrupt.StopRequest, device: str, pipeline: list[wrappers.Step],
                   console: Console, earlier_wall: float, changed: frozenset[str],
-                  on_iteration: IterationHook | None) -> TrainOutcome:
-    description = f"{fw.name} · {env.task_spec.name} · {env.num_envs} envs"
-    writer = SummaryWriter(log_dir=str(run.dir))
-    progress = TrainProgress(cfg.max_iterations, description, console,
+                  on_iteration: IterationHook | None, ranks: Ranks) -> TrainOutcome:
+    envs = (f"{ranks.world_size} ranks × {env.num_envs} envs" if ranks.active
+            else f"{env.num_envs} envs")
+    description = f"{fw.name} · {env.task_spec.name} · {envs}"
+    writer = SummaryWriter(log_dir=str(run.dir)) if ranks.writer else _NoWriter()
+    progress = TrainProgress(cfg.max_iterations, description,
+                             console if ranks.writer else Console(quiet=True),
                              start=resume.iteration if resume else 0)
     ctx = RunContext(cfg=cfg, env=env, framework=fw, run_dir=run.dir, seed=cfg.seed,
                      device=device, progress=progress, writer=writer, resume=resume,
                      resume_state=resume_state, stop=stop, changed=changed,
-                     on_iteration=on_iteration)
+                     on_iteration=on_iteration, ranks=ranks)
     t0 = time.perf_counter()
 
     def summary_of(state: str) -> dict[str, Any]:
         return _summary(ctx, fw, run, state, time.perf_counter() - t0, earlier_wall)
 
-    # A runs table shows the run as running from now on; the real summary replaces this one.
-    rundir.write_json(run.dir, rundir.SUMMARY, summary_of(rundir.RUNNING))
+    if ranks.writer:
+        # A runs table shows the run as running from now on; the real summary replaces this.
+        rundir.write_json(run.dir, rundir.SUMMARY, summary_of(rundir.RUNNING))
     state, error, wrapped = rundir.FAILED, None, None
+    # A data-parallel rank never leaves mid-rollout: the others would wait for it in the next
+    # update. Its stop is agreed on at the end of the iteration (RunContext.end_iteration).
+    stop_mid_rollout = stop if not ranks.active else interrupt.StopRequest()
     try:
-        wrapped = wrappers.apply(StopAtRequest(env, stop), pipeline, fw.name)
+        wrapped = wrappers.apply(StopAtRequest(env, stop_mid_rollout), pipeline, fw.name)
         # StopTraining out of a plugin that leaves ctx.training out: its saves stand.
         with progress, mjwarnings.counted(ctx.mujoco_warnings), \
                 contextlib.suppress(StopTraining):
@@ -292,26 +341,38 @@ def _run_training(fw: Framework, env: Any, cfg: AgentConfig, run: rundir.Run,
     except Exception as exc:
         # A library fails on NaN weights mid-update (e.g. sampling with a NaN std); any other
         # failure is a bug and keeps its traceback.
-        if ctx.networks_finite():
+        if ranks.active and distributed.lost_peer(exc):
+            error = distributed.lost(ranks, exc, ctx.iteration)
+        elif ctx.networks_finite():
             raise
-        error = ctx.failed_on_networks(exc)
+        else:
+            error = ctx.failed_on_networks(exc)
     finally:
         _close(writer, console)
-        ctx.last_good.discard()
         summary = summary_of(state)
         if error is not None:
             summary["error"] = error.message
-        _write_end(run, summary, state, console)
+        if ranks.writer:
+            ctx.last_good.discard()
+            _write_end(run, summary, state, console)
         if wrapped is not None:
             wrapped.close()  # env-stage wrappers write what they hold (a video cut short)
     if error is not None:
         raise error
     if state == rundir.INTERRUPTED:
         summary["signal"] = stop.signum
-    return TrainOutcome(run, summary, ctx.policy_difference)
+    return TrainOutcome(run, summary, ctx.policy_difference, ranks)
 
 
-def _close(writer: SummaryWriter, console: Console) -> None:
+class _NoWriter:
+    """TensorBoard's writer on a rank other than 0, which writes nothing: any of
+    SummaryWriter's calls (a library's own figures) is accepted and dropped."""
+
+    def __getattr__(self, name: str) -> Any:
+        return lambda *args, **kwargs: None
+
+
+def _close(writer: SummaryWriter | _NoWriter, console: Console) -> None:
     try:
         writer.close()
     except OSError as exc:  # a full disk: TensorBoard could not write its last figures

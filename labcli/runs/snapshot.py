@@ -83,7 +83,17 @@ def _check(state: Any) -> None:
             raise ValueError(f"its {key} is {state.get(key)!r}")
     if state.get("env") is not None and not isinstance(state["env"], dict):
         raise TypeError(f"its env state is a {type(state['env']).__name__}")
-    rng = state.get("rng")
+    _check_rng(state.get("rng"))
+    others = state.get("ranks", [])  # a data-parallel run's ranks other than 0
+    if not isinstance(others, list):
+        raise TypeError(f"its ranks are a {type(others).__name__}")
+    for part in others:
+        if not isinstance(part, dict) or not isinstance(part.get("env"), dict | None):
+            raise TypeError("a rank's state is not a mapping of env and generators")
+        _check_rng(part.get("rng"))
+
+
+def _check_rng(rng: Any) -> None:
     if not isinstance(rng, dict):
         raise TypeError("it has no random generator states")
     torch.Generator().set_state(rng["torch"])

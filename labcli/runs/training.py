@@ -6,17 +6,20 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from rich.console import Console
 
+from labcli.errors import LabError
 from labcli.plugins import registry
 from labcli.runs import interrupt
 from labcli.runs.plan import plan
+from labcli.runs.ranks import from_environment
 from labcli.runs.video import VideoSettings
 
 if TYPE_CHECKING:
     from labcli.runs.context import IterationHook
+    from labcli.runs.launcher import Launch
     from labcli.runs.session import TrainOutcome
 
 
@@ -33,12 +36,16 @@ def train(task: str, framework: str, *, num_envs: int | None = None, seed: int |
     figures)` is told every iteration's logged figures; returning True stops the run as Ctrl-C
     would (checkpointed, state 'interrupted')."""
     console = console or Console(stderr=True)
+    ranks = from_environment()  # one of several, when torchrun started this process
+    if not ranks.writer:
+        console = Console(quiet=True)  # rank 0 says it all
     # A signal lab's console script recorded while this command started counts as the first.
     with interrupt.deferred(interrupt.StopRequest(interrupt.startup.signum)) as stop:
         the_plan = plan(task, framework, num_envs=num_envs, seed=seed,
                         max_iterations=max_iterations, device=device, backend=backend,
                         run_name=run_name, overrides=overrides, config_file=config_file,
-                        checkpoint=checkpoint, logs_dir=logs_dir, video=video)
+                        checkpoint=checkpoint, logs_dir=logs_dir, video=video,
+                        ranks=ranks.world_size)
         for failure in registry.loaded().failures:  # what they provide is missing: say so
             console.print(f"warning: plugin '{failure.plugin}' ({failure.provider}) failed to "
                           f"load: {failure.error}", highlight=False, soft_wrap=True)
@@ -47,4 +54,20 @@ def train(task: str, framework: str, *, num_envs: int | None = None, seed: int |
         from labcli.runs import session
 
         return session.run(the_plan, stop, console,
-                           list(command) if command is not None else None, on_iteration)
+                           list(command) if command is not None else None, on_iteration,
+                           ranks)
+
+
+def launch(launch: Launch, argv: Sequence[str], task: str, framework: str, *,
+           console: Console | None = None, **options: Any) -> int:
+    """`lab train <argv>` on data-parallel ranks started here (`lab train --nproc`): the
+    options are checked as a rank will check them, before any rank starts; returns the exit
+    code."""
+    console = console or Console(stderr=True)
+    if from_environment().active:
+        raise LabError("--nproc inside a rank that torchrun started",
+                       "leave out --nproc under torchrun, or run lab train --nproc alone")
+    plan(task, framework, ranks=launch.check(), **options)
+    from labcli.runs.launcher import launch as run_ranks
+
+    return run_ranks(launch, argv, console)

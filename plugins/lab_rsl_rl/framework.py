@@ -105,6 +105,7 @@ class LabRunner(OnPolicyRunner):
     """OnPolicyRunner reporting to lab's TrainContext; checkpoints keep RSL-RL's format."""
 
     def __init__(self, env: RslRlVecEnv, cfg: RslRlPpoConfig, ctx: TrainContext):
+        self._ranks = ctx.rank, ctx.world_size  # for _configure_multi_gpu, called by __init__
         with contextlib.redirect_stdout(io.StringIO()):  # it prints both models; lab has a bar
             super().__init__(env, runner_config(cfg), log_dir=str(ctx.run_dir),
                              device=ctx.device)
@@ -114,6 +115,19 @@ class LabRunner(OnPolicyRunner):
         self.logger = _LabLogger(ctx, self.write_checkpoint, cfg.num_steps_per_env * env.num_envs)
         ctx.watch(self.alg.actor, self.alg.critic)
         ctx.set_actor(self.act)
+
+    def _configure_multi_gpu(self) -> None:
+        """RSL-RL's own set-up reads torchrun's variables, starts NCCL and insists on
+        `cuda:<local rank>`; lab has set up the process group already (gloo on the CPU, NCCL on
+        GPUs, each rank on its own device), so this only tells RSL-RL the ranks. Its PPO then
+        averages the gradients, its normalizers sum their statistics over the ranks, and `learn`
+        starts by broadcasting rank 0's parameters."""
+        rank, world_size = self._ranks
+        self.gpu_global_rank, self.gpu_world_size = rank, world_size
+        self.gpu_local_rank = torch.device(self.device).index or 0
+        self.is_distributed = world_size > 1
+        self.cfg["multi_gpu"] = ({"global_rank": rank, "local_rank": self.gpu_local_rank,
+                                  "world_size": world_size} if self.is_distributed else None)
 
     def act(self, obs: torch.Tensor) -> torch.Tensor:
         """The actor's deterministic output, through its own normalizer."""

@@ -17,13 +17,12 @@ from skrl.agents.torch import ExperimentCfg
 from skrl.agents.torch.ppo import PPO_CFG
 from skrl.memories.torch import RandomMemory
 from skrl.models.torch import DeterministicMixin, GaussianMixin, Model
-from skrl.resources.preprocessors.torch import RunningStandardScaler
 from skrl.resources.schedulers.torch import KLAdaptiveLR
 from torch import nn
 
 from lab_skrl.adapter import SkrlEnv
 from lab_skrl.config import SkrlPPOConfig
-from lab_skrl.ppo import LabSkrlPPO
+from lab_skrl.ppo import LabSkrlPPO, RankedScaler, join_ranks
 from labcli.errors import LabError, first_line
 from labcli.plugins.framework import Framework, TrainContext
 from labcli.plugins.policy import (
@@ -104,10 +103,10 @@ def make_agent(cfg: SkrlPPOConfig, env: SkrlEnv, device: str, run_dir: Path) -> 
         else {},
         # skrl 2.x: `observation_preprocessor` normalizes what the policy sees (1.x called it
         # `state_preprocessor`; 2.x keeps that name for a separate critic state, unused here).
-        observation_preprocessor=RunningStandardScaler if cfg.normalize_obs else None,
+        observation_preprocessor=RankedScaler if cfg.normalize_obs else None,
         observation_preprocessor_kwargs={"size": obs_space, "clip_threshold": cfg.clip_obs,
                                          "epsilon": OBS_EPSILON, "device": device},
-        value_preprocessor=RunningStandardScaler if cfg.normalize_value else None,
+        value_preprocessor=RankedScaler if cfg.normalize_value else None,
         value_preprocessor_kwargs={"size": 1, "device": device},
         grad_norm_clip=cfg.grad_norm_clip, ratio_clip=cfg.ratio_clip, value_clip=cfg.value_clip,
         entropy_loss_scale=cfg.entropy_loss_scale, value_loss_scale=cfg.value_loss_scale,
@@ -130,6 +129,7 @@ def make_agent(cfg: SkrlPPOConfig, env: SkrlEnv, device: str, run_dir: Path) -> 
 class SkrlFramework(Framework):
     def train(self, env: SkrlEnv, ctx: TrainContext) -> None:
         cfg: SkrlPPOConfig = ctx.cfg  # type: ignore[assignment]
+        join_ranks(ctx.rank, torch.device(ctx.device).index or 0, ctx.world_size)
         agent = make_agent(cfg, env, ctx.device, ctx.run_dir)
         steps = 0
         if ctx.resume is not None:

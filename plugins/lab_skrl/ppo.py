@@ -13,6 +13,7 @@ policy and value model), the update is the library's, with its Adam fused.
 from __future__ import annotations
 
 import itertools
+import logging
 from typing import Any
 
 import numpy as np
@@ -21,10 +22,43 @@ import torch.nn.functional as F
 from skrl import config
 from skrl.agents.torch.ppo import PPO
 from skrl.agents.torch.ppo.ppo import compute_gae
+from skrl.resources.preprocessors.torch import RunningStandardScaler
 from skrl.resources.schedulers.torch import KLAdaptiveLR
 from torch import nn
 
 from labcli.plugins.update_graph import UpdateGraph, adapt_adam, eager_adam_state
+
+
+def join_ranks(rank: int, local_rank: int, world_size: int) -> None:
+    """Tell skrl's config the ranks of a data-parallel run. skrl reads them from torchrun's
+    variables once, when imported, and then sets up NCCL itself; lab has set up the process
+    group (gloo on the CPU) and kept the variables from it. With the ranks known, skrl's agents
+    broadcast rank 0's parameters and average gradients and the KL over the ranks. Its config
+    has no setter for them. Its notes of each broadcast are left out: lab says what runs."""
+    logging.getLogger("skrl").setLevel(logging.WARNING if world_size > 1 else logging.DEBUG)
+    cfg = config.torch
+    cfg._rank, cfg._local_rank, cfg._world_size = rank, local_rank, world_size
+    cfg._is_distributed = world_size > 1
+
+
+class RankedScaler(RunningStandardScaler):
+    """skrl's running standard scaler, whose statistics take in the batches of every rank of a
+    data-parallel run (skrl's own updates from its rank's alone, so the ranks' scalers, and the
+    policies they feed, would drift apart). Alone, it is skrl's."""
+
+    def _parallel_variance(self, input_mean: torch.Tensor, input_var: torch.Tensor,
+                           input_count: int) -> None:
+        if config.torch.is_distributed:
+            # Every rank's batch is as large: the union's mean, and its unbiased variance
+            # (torch.var's, as skrl computes it) from each rank's sums of squares.
+            n, world = input_count, config.torch.world_size
+            sums = torch.stack([input_mean * n, input_var * (n - 1) + input_mean**2 * n])
+            torch.distributed.all_reduce(sums)
+            total = n * world
+            input_mean = sums[0] / total
+            input_var = (sums[1] - input_mean**2 * total) / (total - 1)
+            input_count = total
+        super()._parallel_variance(input_mean, input_var, input_count)
 
 
 class LabSkrlPPO(PPO):

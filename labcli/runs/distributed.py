@@ -1,0 +1,125 @@
+"""Data-parallel training, the side of one rank. `torchrun` (or `lab train --nproc`, which runs
+torchrun's launcher in-process: labcli/runs/launcher.py) starts one process per rank with RANK,
+LOCAL_RANK and WORLD_SIZE set. Each steps its own envs, seeded apart, and trains the same agent,
+whose library averages the gradients over the ranks (RSL-RL's and skrl's own code). lab sets up
+the process group before the library is imported: gloo on the CPU, NCCL on GPUs (both libraries
+would ask for NCCL, which has no CPU). Rank 0 alone writes the run dir; lab itself adds one tiny
+collective per iteration (episode figures and the stop request) and a gather at checkpoints
+(every rank's episodes in flight)."""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import traceback
+from collections.abc import Iterator
+from datetime import timedelta
+from typing import Any
+
+import torch
+import torch.distributed as dist
+
+from labcli.errors import LabError, first_line
+from labcli.runs.ranks import TORCHRUN_VARIABLES, Ranks
+
+# Long enough for a rank that builds its envs slowly (MuJoCo Warp compiles its kernels for a
+# minute on first use) or waits while rank 0 writes a checkpoint; a rank that died fails the
+# others at once (its sockets close), so this only bounds a rank that hangs.
+TIMEOUT = timedelta(minutes=10)
+
+
+class RankLost(LabError):
+    """Another rank stopped answering (it died, or was killed): this one stops too."""
+
+    exit_code = 1
+
+
+def device_of(ranks: Ranks, device: str) -> str:
+    """On GPUs each rank takes `cuda:<local rank>`; a device naming another GPU is refused."""
+    dev = torch.device(device)
+    if not ranks.active or dev.type != "cuda":
+        return device
+    if dev.index is not None and dev.index != ranks.local_rank:
+        raise LabError(f"--device {device} on local rank {ranks.local_rank}: each rank takes "
+                       "the GPU of its local rank", "pass --device cuda")
+    if ranks.local_rank >= torch.cuda.device_count():
+        raise LabError(f"local rank {ranks.local_rank} has no GPU: {torch.cuda.device_count()} "
+                       "are visible", "start at most one rank per GPU on each host")
+    return f"cuda:{ranks.local_rank}"
+
+
+@contextlib.contextmanager
+def process_group(ranks: Ranks, device: str) -> Iterator[None]:
+    """torch.distributed's default group for the ranks, for as long as training lasts."""
+    if not ranks.active:
+        yield
+        return
+    cuda = torch.device(device).type == "cuda"
+    if cuda:
+        torch.cuda.set_device(torch.device(device))
+    try:
+        dist.init_process_group("nccl" if cuda else "gloo", rank=ranks.rank,
+                                world_size=ranks.world_size, timeout=TIMEOUT)
+    except (RuntimeError, ValueError) as exc:
+        raise RankLost(f"rank {ranks.rank}: the ranks did not meet: {first_line(exc)}",
+                       "check that every rank runs, with the same MASTER_ADDR and MASTER_PORT"
+                       ) from None
+    # The group is lab's: a library reading torchrun's variables would set up NCCL again
+    # (skrl does, when imported); each is told the ranks through TrainContext instead.
+    consumed = {name: os.environ.pop(name) for name in TORCHRUN_VARIABLES if name in os.environ}
+    try:
+        yield
+    finally:
+        os.environ.update(consumed)
+        dist.destroy_process_group()
+
+
+def _flags(device: str, values: list[float]) -> torch.Tensor:
+    # NCCL reduces device tensors only; gloo, host ones.
+    return torch.tensor(values, dtype=torch.float64, device=device)
+
+
+def any_rank(requested: bool, device: str) -> bool:
+    """Whether any rank was asked to stop: all of them stop after the same iteration (a rank
+    leaving alone would leave the others waiting in the next update's collectives)."""
+    flag = _flags(device, [float(requested)])
+    dist.all_reduce(flag, op=dist.ReduceOp.MAX)
+    return bool(flag.item())
+
+
+def summed(tensor: torch.Tensor, device: str) -> torch.Tensor:
+    """The sum of `tensor` over the ranks, on every rank; `tensor` is left as it is."""
+    total = tensor.to(device, copy=True)
+    dist.all_reduce(total, op=dist.ReduceOp.SUM)
+    return total
+
+
+def gather_to_writer(ranks: Ranks, value: Any) -> list[Any] | None:
+    """Every rank's `value` (small tensors and numbers), in rank order, on rank 0; None on the
+    others."""
+    gathered = [None] * ranks.world_size if ranks.writer else None
+    dist.gather_object(value, gathered, dst=0)
+    return gathered
+
+
+def broadcast_from_writer(value: Any) -> Any:
+    """Rank 0's `value` on every rank."""
+    box = [value]
+    dist.broadcast_object_list(box, src=0)
+    return box[0]
+
+
+def lost_peer(exc: BaseException) -> bool:
+    """Whether `exc` came out of a collective: where the ranks stop answering (gloo: "Connection
+    reset by peer"; NCCL: a watchdog's abort), the error rises from torch.distributed's calls."""
+    if not isinstance(exc, RuntimeError) or not dist.is_initialized():
+        return False
+    return any(frame.f_code.co_filename.endswith(os.path.join("distributed", "distributed_c10d.py"))
+               for frame, _ in traceback.walk_tb(exc.__traceback__))
+
+
+def lost(ranks: Ranks, exc: BaseException, iteration: int) -> RankLost:
+    return RankLost(f"rank {ranks.rank}: another rank stopped answering after iteration "
+                    f"{iteration} ({first_line(exc)})",
+                    "the run keeps its last checkpoint: resume it with --checkpoint latest "
+                    "and as many ranks")

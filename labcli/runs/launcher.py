@@ -1,0 +1,98 @@
+"""`lab train --nproc N`: torchrun's launcher (torch.distributed.elastic's agent), run inside
+`lab` rather than beside it. It starts N ranks of the same `lab train` command on this host
+(`--nnodes` and a rendezvous endpoint join several hosts, as torchrun's flags do), watches them,
+and ends them all when one fails. What it adds to `torchrun -m labcli train ...` is one line
+instead of torchrun's report when a rank dies, and the exit code of the rank that failed."""
+
+from __future__ import annotations
+
+import logging
+import sys
+import uuid
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+from rich.console import Console
+
+from labcli.errors import LabError
+
+# The options that only the launcher reads: the ranks run the command without them.
+LAUNCH_OPTIONS = ("--nproc", "--nnodes", "--rdzv-endpoint", "--rdzv-id")
+# A stop must reach every rank's checkpoint: the agent waits this long after passing a signal
+# on before it kills the ranks.
+SHUTDOWN_TIMEOUT_S = 300
+
+
+@dataclass(frozen=True)
+class Launch:
+    nproc: int
+    nnodes: str = "1"  # "N", or "MIN:MAX" for an elastic number of hosts
+    rdzv_endpoint: str | None = None  # host:port of the rendezvous, on several hosts
+    rdzv_id: str | None = None  # the same on every host of one run
+
+    def nodes(self) -> tuple[int, int]:
+        try:
+            low, _, high = self.nnodes.partition(":")
+            nodes = int(low), int(high or low)
+        except ValueError:
+            nodes = (0, 0)
+        if not 1 <= nodes[0] <= nodes[1]:
+            raise LabError(f"--nnodes '{self.nnodes}' is not a number of hosts",
+                           "pass e.g. --nnodes 2, or --nnodes 1:4")
+        return nodes
+
+    def check(self) -> int:
+        """The most ranks the run may have; a LabError for flags that cannot launch."""
+        if self.nproc < 1:
+            raise LabError(f"--nproc must be a positive integer, got {self.nproc}")
+        low, high = self.nodes()
+        if high > 1 and not (self.rdzv_endpoint and self.rdzv_id):
+            raise LabError(f"--nnodes {self.nnodes} without --rdzv-endpoint and --rdzv-id",
+                           "give every host the same --rdzv-endpoint HOST:PORT and --rdzv-id")
+        return self.nproc * high
+
+
+def rank_argv(argv: Sequence[str]) -> list[str]:
+    """`argv` without the launcher's options (`--nproc 2` or `--nproc=2`)."""
+    out, skip = [], False
+    for arg in argv:
+        if skip:
+            skip = False
+        elif arg in LAUNCH_OPTIONS:
+            skip = True
+        elif not arg.startswith(tuple(f"{option}=" for option in LAUNCH_OPTIONS)):
+            out.append(arg)
+    return out
+
+
+def launch(launch: Launch, argv: Sequence[str], console: Console) -> int:
+    """Run `lab <argv>` on `launch.nproc` ranks per host and return the exit code: 0, that of
+    the rank that failed first, or 128 + the signal that stopped the launcher."""
+    from torch.distributed.elastic.multiprocessing.api import SignalException
+    from torch.distributed.elastic.multiprocessing.errors import ChildFailedError
+    from torch.distributed.launcher.api import LaunchConfig, elastic_launch
+
+    low, high = launch.nodes()
+    one_host = high == 1 and launch.rdzv_endpoint is None
+    config = LaunchConfig(
+        min_nodes=low, max_nodes=high, nproc_per_node=launch.nproc,
+        run_id=launch.rdzv_id or uuid.uuid4().hex, rdzv_backend="c10d",
+        # torchrun's --standalone: a rendezvous on a free local port.
+        rdzv_endpoint="localhost:0" if one_host else launch.rdzv_endpoint or "",
+        max_restarts=0, shutdown_timeout=SHUTDOWN_TIMEOUT_S)
+    # The agent logs every worker it starts and stops; a failure is said below in one line.
+    logging.getLogger("torch.distributed.elastic").setLevel(logging.CRITICAL)
+    try:
+        elastic_launch(config, sys.executable)("-m", "labcli", *rank_argv(argv))
+    except ChildFailedError as exc:
+        rank, failure = exc.get_first_failure()
+        if failure.exitcode > 0:  # it said why itself, in its own line
+            return failure.exitcode
+        console.print(f"error: rank {rank} was ended by {failure.signal_name()}; the other "
+                      "ranks were stopped (the run keeps its last checkpoint: resume it with "
+                      "--checkpoint latest)", highlight=False, soft_wrap=True)
+        return 1
+    except SignalException as exc:  # passed on to the ranks, which checkpointed and stopped
+        return 128 + int(exc.sigval)
+    return 0
+
