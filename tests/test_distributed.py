@@ -40,11 +40,14 @@ STEPS_PER_ENV = 8
 # torchrun's variables -------------------------------------------------------------------------
 def test_ranks_come_from_torchruns_variables():
     assert from_environment({}) == SINGLE
-    assert from_environment({"RANK": "1", "LOCAL_RANK": "1", "WORLD_SIZE": "2"}) == Ranks(1, 1, 2)
-    ranks = from_environment({"RANK": "3", "LOCAL_RANK": "1", "WORLD_SIZE": "4"})
-    assert not ranks.writer and ranks.active
+    assert from_environment({"RANK": "1", "LOCAL_RANK": "1", "WORLD_SIZE": "2"}) == Ranks(
+        1, 1, 2, 2)
+    ranks = from_environment({"RANK": "3", "LOCAL_RANK": "1", "WORLD_SIZE": "4",
+                              "LOCAL_WORLD_SIZE": "2"})
+    assert not ranks.writer and ranks.active and ranks.local_world_size == 2
     for bad in ({"RANK": "2", "LOCAL_RANK": "0", "WORLD_SIZE": "2"},
-                {"RANK": "x", "LOCAL_RANK": "0", "WORLD_SIZE": "2"}):
+                {"RANK": "x", "LOCAL_RANK": "0", "WORLD_SIZE": "2"},
+                {"RANK": "0", "LOCAL_RANK": "0", "WORLD_SIZE": "2", "LOCAL_WORLD_SIZE": "3"}):
         with pytest.raises(LabError):
             from_environment(bad)
 

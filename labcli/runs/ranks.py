@@ -17,6 +17,7 @@ class Ranks:
     rank: int = 0
     local_rank: int = 0
     world_size: int = 1
+    local_world_size: int = 1  # the ranks on this host, which share its cores
 
     @property
     def writer(self) -> bool:
@@ -45,4 +46,8 @@ def from_environment(environ: Mapping[str, str] = os.environ) -> Ranks:
     if not 0 <= rank < world_size or not 0 <= local_rank < world_size:
         raise LabError(f"RANK={rank}, LOCAL_RANK={local_rank} with WORLD_SIZE={world_size}",
                        "start ranks with torchrun or lab train --nproc")
-    return Ranks(rank, local_rank, world_size)
+    local_world_size = environ.get("LOCAL_WORLD_SIZE", str(world_size))
+    if not local_world_size.isdigit() or not 0 < int(local_world_size) <= world_size:
+        raise LabError(f"LOCAL_WORLD_SIZE={local_world_size!r} with WORLD_SIZE={world_size}",
+                       "start ranks with torchrun or lab train --nproc")
+    return Ranks(rank, local_rank, world_size, int(local_world_size))

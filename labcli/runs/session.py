@@ -25,6 +25,7 @@ from labcli.envs import metrics, mjwarnings, wrappers
 from labcli.envs.config import TaskConfig
 from labcli.envs.make import make_env
 from labcli.envs.sim import WARP_INSTALL_HINT, default_backend
+from labcli.envs.sim.cpu import cores
 from labcli.errors import LabError
 from labcli.plugins import registry
 from labcli.plugins.config import AgentConfig
@@ -104,6 +105,11 @@ class _Session:
         before = _previous(run_)
 
         seed = agent_cfg.seed + ranks.rank  # each rank its own episodes and exploration
+        if ranks.local_world_size > 1 and env_cfg.threads is None:
+            # The host's cores shared out: each rank's physics on as many threads as all of
+            # them would oversubscribe the cores by the number of ranks.
+            share = max(1, cores() // ranks.local_world_size)
+            env_cfg = env_cfg.model_copy(update={"threads": share})
         snapshot.seed_all(seed)
         env = make_env(plan.spec, env_cfg, backend=plan.backend, device=self.device, seed=seed)
         try:

@@ -30,7 +30,7 @@ def _state_slice(model: mujoco.MjModel, part: mujoco.mjtState) -> slice:
     return slice(start, start + mujoco.mj_stateSize(model, part))
 
 
-def _cores() -> int:
+def cores() -> int:
     """Cores this process may run on: a taskset or cpuset narrows them below the machine's,
     and more rollout threads than cores only queue for them."""
     if hasattr(os, "sched_getaffinity"):
@@ -112,7 +112,7 @@ class CpuSim(Sim):
         self.model = model
         self.num_envs = num_envs
         self.device = torch.device("cpu")
-        self.nthread = min(nthread or _cores(), num_envs)
+        self.nthread = min(nthread or cores(), num_envs)
         # One MjModel per env where a field differs per env (rollout takes one per env).
         self._models = ([copy.copy(model) for _ in range(num_envs)] if per_env_fields
                         else [model] * num_envs)
