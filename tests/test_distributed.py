@@ -100,8 +100,8 @@ def _rank(rank: int, tmp: str, framework: str, port: int) -> None:
 
     context.RunContext.save = save_on_every_rank
     outcome = training.train("cartpole", framework, num_envs=ENVS, max_iterations=ITERATIONS,
-                             overrides=SMALL[framework], logs_dir=Path(tmp, f"logs{rank}"),
-                             console=Console(file=io.StringIO()))
+                             device="cpu", backend="cpu", overrides=SMALL[framework],
+                             logs_dir=Path(tmp, f"logs{rank}"), console=Console(file=io.StringIO()))
     Path(tmp, f"summary{rank}.json").write_text(json.dumps(outcome.summary))
 
 
@@ -149,7 +149,7 @@ def test_two_gloo_ranks_train_one_agent(tmp_path, framework):
 
 
 # Two ranks, as `lab train --nproc 2` starts them ----------------------------------------------
-ENDLESS = ["--num-envs", "8", "--max-iterations", "1000000", *(
+ENDLESS = ["--backend", "cpu", "--num-envs", "8", "--max-iterations", "1000000", *(
     arg for setting in SMALL["rsl_rl"] for arg in ("--set", setting))]
 
 
@@ -216,7 +216,8 @@ def test_ctrl_c_checkpoints_every_rank_and_the_run_resumes(tmp_path):
     assert summary["checkpoint"] == f"model_{stopped}.pt"
     assert len(snapshot.load(snapshot.path_of(run_dir, stopped))["ranks"]) == 1
 
-    resumed = _start(tmp_path, "--checkpoint", "latest", "--max-iterations", str(stopped + 2))
+    resumed = _start(tmp_path, "--backend", "cpu", "--checkpoint", "latest", "--max-iterations",
+                     str(stopped + 2))
     out, err = resumed.communicate(timeout=120)
     assert resumed.returncode == 0, err
     summary = json.loads((run_dir / rundir.SUMMARY).read_text())

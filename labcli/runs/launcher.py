@@ -6,6 +6,7 @@ instead of torchrun's report when a rank dies, and the exit code of the rank tha
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import sys
 import uuid
@@ -74,12 +75,15 @@ def launch(launch: Launch, argv: Sequence[str], console: Console) -> int:
 
     low, high = launch.nodes()
     one_host = high == 1 and launch.rdzv_endpoint is None
+    # torch < 2.13 has no such setting: its agent waits 30 s.
+    later = ({"shutdown_timeout": SHUTDOWN_TIMEOUT_S}
+             if "shutdown_timeout" in {f.name for f in dataclasses.fields(LaunchConfig)} else {})
     config = LaunchConfig(
         min_nodes=low, max_nodes=high, nproc_per_node=launch.nproc,
         run_id=launch.rdzv_id or uuid.uuid4().hex, rdzv_backend="c10d",
         # torchrun's --standalone: a rendezvous on a free local port.
         rdzv_endpoint="localhost:0" if one_host else launch.rdzv_endpoint or "",
-        max_restarts=0, shutdown_timeout=SHUTDOWN_TIMEOUT_S)
+        max_restarts=0, **later)
     # The agent logs every worker it starts and stops; a failure is said below in one line.
     logging.getLogger("torch.distributed.elastic").setLevel(logging.CRITICAL)
     try:

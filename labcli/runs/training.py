@@ -68,6 +68,15 @@ def launch(launch: Launch, argv: Sequence[str], task: str, framework: str, *,
         raise LabError("--nproc inside a rank that torchrun started",
                        "leave out --nproc under torchrun, or run lab train --nproc alone")
     plan(task, framework, ranks=launch.check(), **options)
+    import torch
+
     from labcli.runs.launcher import launch as run_ranks
+    from labcli.runs.session import check_device
+
+    device = check_device(options.get("device"), options.get("backend"))
+    gpus = torch.cuda.device_count()
+    if device.startswith("cuda") and launch.nproc > gpus:
+        raise LabError(f"--nproc {launch.nproc} on a host with {gpus} GPU(s): each rank takes "
+                       "one", f"pass --nproc {gpus}, or --backend cpu for ranks on the CPU")
 
     return run_ranks(launch, argv, console)
