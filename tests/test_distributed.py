@@ -224,3 +224,15 @@ def test_ctrl_c_checkpoints_every_rank_and_the_run_resumes(tmp_path):
     assert summary["state"] == rundir.FINISHED and summary["iterations"] == stopped + 2
     assert summary["steps"] == (stopped + 2) * STEPS_PER_ENV * 8 * 2
     assert "note:" not in err  # every rank went on with its own episodes
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="finds ranks through /proc")
+def test_sigterm_to_one_rank_stops_them_all_with_a_checkpoint(tmp_path):
+    proc = _start(tmp_path, *ENDLESS)
+    run_dir = _run_dir_with_checkpoints(tmp_path, 2, proc)
+    os.kill(_rank_pid(proc.pid, 1), signal.SIGTERM)  # a scheduler preempting one process
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 143, err
+    summary = json.loads((run_dir / rundir.SUMMARY).read_text())
+    assert summary["state"] == rundir.INTERRUPTED
+    assert summary["checkpoint"] == f"model_{summary['iterations']}.pt"

@@ -160,8 +160,10 @@ class RunContext(TrainContext):
                                  self.last_stats.get(metrics.SUCCESS_RATE))
             if self.on_iteration is not None and self.on_iteration(iteration, steps, figures):
                 self.stop.request()
-        if self.ranks.active and distributed.any_rank(self.stop_requested, self.device):
-            self.stop.request()  # all ranks stop after this iteration, however many were asked
+        if self.ranks.active:
+            agreed = distributed.agreed_stop(self.stop.signum, self.device)
+            if agreed is not None:
+                self.stop.request(agreed)
         last = iteration >= self.cfg.max_iterations
         if last or self.stop_requested or iteration % self.cfg.save_interval == 0:
             self.save(save)

@@ -79,12 +79,13 @@ def _flags(device: str, values: list[float]) -> torch.Tensor:
     return torch.tensor(values, dtype=torch.float64, device=device)
 
 
-def any_rank(requested: bool, device: str) -> bool:
-    """Whether any rank was asked to stop: all of them stop after the same iteration (a rank
-    leaving alone would leave the others waiting in the next update's collectives)."""
-    flag = _flags(device, [float(requested)])
+def agreed_stop(signum: int | None, device: str) -> int | None:
+    """The signal any rank was stopped by (None while none was): all ranks stop after the same
+    iteration, however many were asked (a rank leaving alone would leave the others waiting in
+    the next update's collectives)."""
+    flag = _flags(device, [float(signum or 0)])
     dist.all_reduce(flag, op=dist.ReduceOp.MAX)
-    return bool(flag.item())
+    return int(flag.item()) or None
 
 
 def summed(tensor: torch.Tensor, device: str) -> torch.Tensor:
