@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import re
 import traceback
 from collections.abc import Iterator
 from datetime import timedelta
@@ -119,8 +120,12 @@ def lost_peer(exc: BaseException) -> bool:
                for frame, _ in traceback.walk_tb(exc.__traceback__))
 
 
-def lost(ranks: Ranks, exc: BaseException, iteration: int) -> RankLost:
+def lost(ranks: Ranks, exc: BaseException, iteration: int | None = None) -> RankLost:
+    # gloo's message: "[.../pair.cc:553] Connection closed by peer [addr]:port. This is..."
+    detail = re.sub(r"^\[[^\]]*\]\s*", "", first_line(exc)).split(". ")[0]
+    if iteration is None:
+        return RankLost(f"rank {ranks.rank}: another rank stopped answering before training "
+                        f"({detail})", "the first error above says why")
     return RankLost(f"rank {ranks.rank}: another rank stopped answering after iteration "
-                    f"{iteration} ({first_line(exc)})",
-                    "the run keeps its last checkpoint: resume it with --checkpoint latest "
-                    "and as many ranks")
+                    f"{iteration} ({detail})", "the run keeps its last checkpoint: resume it "
+                    "with --checkpoint latest and as many ranks")

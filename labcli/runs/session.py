@@ -78,10 +78,15 @@ def run(plan: TrainPlan, stop: interrupt.StopRequest, console: Console,
     # Before the library is imported: RSL-RL and skrl join a process group that exists.
     with distributed.process_group(ranks, device):
         session = _Session(plan, stop, console, command, on_iteration, ranks, device)
-        if plan.run is None or not ranks.writer:
-            return session.run()
-        with rundir.writing(plan.run):
-            return session.run()
+        try:
+            if plan.run is None or not ranks.writer:
+                return session.run()
+            with rundir.writing(plan.run):
+                return session.run()
+        except RuntimeError as exc:  # rank 0 failed before training (and said why)
+            if ranks.active and distributed.lost_peer(exc):
+                raise distributed.lost(ranks, exc) from None
+            raise
 
 
 @dataclass

@@ -12,7 +12,7 @@ from rich.console import Console
 
 from labcli.errors import LabError
 from labcli.plugins import registry
-from labcli.runs import interrupt
+from labcli.runs import interrupt, rundir
 from labcli.runs.plan import plan
 from labcli.runs.ranks import from_environment
 from labcli.runs.video import VideoSettings
@@ -67,7 +67,8 @@ def launch(launch: Launch, argv: Sequence[str], task: str, framework: str, *,
     if from_environment().active:
         raise LabError("--nproc inside a rank that torchrun started",
                        "leave out --nproc under torchrun, or run lab train --nproc alone")
-    plan(task, framework, ranks=launch.check(), **options)
+    the_plan = plan(task, framework, ranks=launch.check(), **options)
+    rundir.check_writable(the_plan.run.dir if the_plan.run else the_plan.new_run_parent)
     import torch
 
     from labcli.runs.launcher import launch as run_ranks
