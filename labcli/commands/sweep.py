@@ -97,8 +97,7 @@ def sweep(
         raise typer.Exit(128 + int(outcome.signum))
     failed = [row for row in outcome.rows if row.state == "failed"]
     if outcome.rows and len(failed) == len(outcome.rows):
-        raise LabError(f"every trial failed; the first: {failed[0].error or 'see its run'}",
-                       "see the trials' run dirs")
+        raise LabError(f"every trial failed; the first: {failed[0].error or 'see its run'}")
 
 
 def _print(outcome: SweepOutcome) -> None:
@@ -118,6 +117,10 @@ def _print(outcome: SweepOutcome) -> None:
                       "-" if row.iterations is None else f"{row.iterations}/{spec.iterations}",
                       row.state, row.run_dir.name if row.run_dir else "-")
     out().print(shown)
+    for row in outcome.rows:
+        if row.error:
+            err().print(f"note: trial {row.trial_id} failed: {row.error}", highlight=False,
+                        soft_wrap=True)
     for note in outcome.notes:
         err().print(f"note: {note}", highlight=False, soft_wrap=True)
     say(f"results: {outcome.dir / 'results.json'}")

@@ -248,13 +248,19 @@ def make_tuner(sweep_dir: Path, *, param_space: dict[str, Any], samples: int, me
 
 def fit(tuner: tune.Tuner) -> None:
     """Run the sweep, Tune's own output left out: the sweep prints its progress (Progress) and
-    its table. Tune's newer output engine prints its header whatever the verbosity; the older
-    one at verbosity 0 prints nothing."""
+    its table, with each failed trial's error. Tune's newer output engine prints its header
+    whatever the verbosity; the older one at verbosity 0 prints nothing."""
     previous = os.environ.get(NEW_OUTPUT)
     os.environ[NEW_OUTPUT] = "0"
+    quiet = _SaidInTheTable()
+    loggers = [logging.getLogger(name) for name in TUNE_LOGGERS]
+    for logger in loggers:
+        logger.addFilter(quiet)
     try:
         tuner.fit()
     finally:
+        for logger in loggers:
+            logger.removeFilter(quiet)
         if previous is None:
             os.environ.pop(NEW_OUTPUT, None)
         else:
@@ -262,6 +268,19 @@ def fit(tuner: tune.Tuner) -> None:
 
 
 NEW_OUTPUT = "RAY_AIR_NEW_OUTPUT"
+# Where Tune logs a failed trial with its traceback, and the trials that did not complete.
+TUNE_LOGGERS = ("ray.tune.execution.tune_controller", "ray.tune.tune")
+
+
+class _SaidInTheTable(logging.Filter):
+    """Drops Tune's traceback of a trial that failed on a LabError (Ray re-raises it as a
+    subclass of it) and its list of unfinished trials: the results table says both in one line
+    each. Any other failure, a bug, keeps its traceback."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        if record.exc_info and isinstance(record.exc_info[1], LabError):
+            return False
+        return not record.getMessage().startswith("Trials did not complete")
 
 
 def can_restore(sweep_dir: Path) -> bool:
@@ -296,13 +315,17 @@ def trial_states(sweep_dir: Path) -> list[TrialState]:
 
 
 def _error_of(trial: Any) -> str | None:
-    """The last line of a failed trial's traceback: the exception and its message."""
+    """The last line of a failed trial's traceback (Tune's error.txt in its folder): a
+    LabError's message, or another exception's name and message."""
     path = getattr(trial, "error_file", None)
     if not path or not Path(path).is_file():
         return None
     lines = [line.strip() for line in Path(path).read_text(errors="replace").splitlines()
              if line.strip()]
-    return lines[-1] if lines else None
+    if not lines:
+        return None
+    name, _, message = lines[-1].partition(": ")
+    return message if name.startswith("labcli.errors.") and message else lines[-1]
 
 
 class Progress(tune.Callback):
