@@ -103,17 +103,19 @@ def sweep(
 def _print(outcome: SweepOutcome) -> None:
     from rich.table import Column
 
-    from labcli.runs import tuning
+    from labcli.runs import sweep as sweeps
 
     spec = outcome.spec
     keys = list(spec.space)
     runs = Path(spec.logs_dir) / spec.framework / spec.task
-    shown = table("trial", *keys, spec.metric, "iterations", Column("state", no_wrap=True),
+    # The sweep's metric, then the other figure, which breaks its ties.
+    figures = [spec.metric, *(name for name in sweeps.METRICS if name != spec.metric)]
+    shown = table("trial", *keys, *figures, "iterations", Column("state", no_wrap=True),
                   f"run in {runs}", title=f"{len(outcome.rows)} trials of sweep {spec.name}, "
                   f"best {spec.metric} first")
     for row in outcome.rows:
         shown.add_row(row.trial_id, *(_value(row.params.get(key)) for key in keys),
-                      tuning.format_metric(spec.metric, row.metric),
+                      *(sweeps.format_metric(name, row.figures.get(name)) for name in figures),
                       "-" if row.iterations is None else f"{row.iterations}/{spec.iterations}",
                       row.state, row.run_dir.name if row.run_dir else "-")
     out().print(shown)

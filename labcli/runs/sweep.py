@@ -96,6 +96,12 @@ class SweepSpec:
                            ) from None
 
 
+def format_metric(metric: str, value: float | None) -> str:
+    if value is None or not math.isfinite(value):
+        return "-"
+    return f"{value:.0%}" if metric == "success" else f"{value:.1f}"
+
+
 @dataclass
 class TrialRow:
     """One line of the results table: what a trial drew, how its run ended."""
@@ -107,6 +113,9 @@ class TrialRow:
     state: str
     run_dir: Path | None = None
     error: str | None = None
+    # Both figures of its run's summary, by --metric name: the other one breaks ties (trials
+    # that all reach a success of 100% are told apart by their return).
+    figures: dict[str, float | None] = field(default_factory=dict)
 
     def as_dict(self) -> dict[str, Any]:
         return {**self.__dict__, "run_dir": str(self.run_dir) if self.run_dir else None}
@@ -332,15 +341,22 @@ def rows(spec: SweepSpec, states: list[TrialState]) -> list[TrialRow]:
                 row.state = rundir.run_state(run)
             except LabError as exc:
                 summary, row.state, row.error = {}, rundir.DAMAGED, exc.message
-            value = summary.get(METRICS[spec.metric])
-            row.metric = value if isinstance(value, (int, float)) and math.isfinite(value) \
-                else None
+            row.figures = {name: _finite(summary.get(key)) for name, key in METRICS.items()}
+            row.metric = row.figures[spec.metric]
             row.iterations = summary.get("iterations")
             row.error = summary.get("error") or row.error
             if row.state == rundir.INTERRUPTED and not state.unfinished:
                 row.state = STOPPED
         out.append(row)
-    return sorted(out, key=lambda r: (r.metric is None, -(r.metric or 0.0), r.trial_id))
+    other = next(name for name in METRICS if name != spec.metric)
+    return sorted(out, key=lambda r: (r.metric is None, -(r.metric or 0.0),
+                                      r.figures.get(other) is None,
+                                      -(r.figures.get(other) or 0.0), r.trial_id))
+
+
+def _finite(value: Any) -> float | None:
+    ok = isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+    return float(value) if ok else None
 
 
 def best_config(spec: SweepSpec, best: TrialRow) -> dict[str, dict[str, Any]]:
@@ -363,8 +379,10 @@ def _write_results(outcome: SweepOutcome) -> None:
     if best is None:
         outcome.notes.append(f"no trial reported a {spec.metric}: no {BEST} written")
         return
+    figures = ", ".join(f"{name} {format_metric(name, value)}"
+                        for name, value in best.figures.items())
     header = (f"# lab sweep {spec.name}: the best of {len(outcome.rows)} trials by "
-              f"{spec.metric} ({best.metric:.4g}), trial {best.trial_id}, run {best.run_dir}\n"
+              f"{spec.metric} ({figures}), trial {best.trial_id}, run {best.run_dir}\n"
               f"# lab train --task {spec.task} --framework {spec.framework} --config "
               f"{sweep_dir / BEST}\n")
     outcome.best_file = sweep_dir / BEST

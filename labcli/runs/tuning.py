@@ -31,6 +31,7 @@ from rich.console import Console
 from labcli.envs import metrics
 from labcli.errors import LabError
 from labcli.runs import rundir, space
+from labcli.runs.sweep import format_metric
 
 # The figures each report carries (fixed from the first report on: Tune's CSV log keeps the
 # columns of the first one). The two metrics are lab's shared TensorBoard tags.
@@ -160,6 +161,9 @@ def settings(task: str, framework: str, *, name: str, logs_dir: Path, fixed: lis
 # Ray ---------------------------------------------------------------------------------------
 
 
+LOCAL = "local"
+
+
 def start(address: str | None, cores: int) -> bool:
     """Join the cluster at `address`, or start a local Ray on `cores` cores: no dashboard, and
     the trials' output kept in Ray's logs rather than mixed into the sweep's. Returns whether
@@ -169,9 +173,12 @@ def start(address: str | None, cores: int) -> bool:
     options: dict[str, Any] = {"include_dashboard": False, "log_to_driver": False,
                                "logging_level": logging.ERROR}
     if address is None:
+        # "local": a Ray of this sweep's own. Left to itself, ray.init joins whatever cluster
+        # RAY_ADDRESS or Ray's last `ray start` on this machine names, another user's or one
+        # long gone.
         options["num_cpus"] = cores
     try:
-        ray.init(address=address, **options)
+        ray.init(address=address or LOCAL, **options)
     except (ConnectionError, RuntimeError, ValueError) as exc:
         raise LabError(f"cannot {'join Ray at ' + address if address else 'start Ray'}: "
                        f"{_first_line(exc)}",
@@ -397,9 +404,3 @@ class Progress(tune.Callback):
             best = "" if self._best is None else \
                 f"best {self.metric} {format_metric(self.metric, self._best)}"
             self._bar.update(self._task, completed=len(self._ended), best=best)
-
-
-def format_metric(metric: str, value: float | None) -> str:
-    if value is None or not math.isfinite(value):
-        return "-"
-    return f"{value:.0%}" if metric == "success" else f"{value:.1f}"
