@@ -29,8 +29,9 @@ from ray.tune.trainable.function_trainable import wrap_function
 from rich.console import Console
 
 from labcli.envs import metrics
-from labcli.errors import LabError
-from labcli.runs import rundir, space
+from labcli.errors import LabError, first_line
+from labcli.plugins import registry
+from labcli.runs import checkpoints, rundir, space
 from labcli.runs.sweep import format_metric
 
 # The figures each report carries (fixed from the first report on: Tune's CSV log keeps the
@@ -114,8 +115,11 @@ def run_trial(config: dict[str, Any]) -> None:
             reporter(summary.get("iterations", 0), summary.get("steps", 0),
                      {METRICS[n]: summary[f] for n, f in SUMMARY_FIELDS.items()
                       if summary.get(f) is not None})
+            _end(reporter)
             return
-        if summary.get("checkpoint"):
+        # Its last complete checkpoint, whatever its summary says (a run whose actor was
+        # killed never wrote its end); without one the trial starts a new run.
+        if checkpoints.latest_complete(registry.get_framework(framework), previous.dir):
             checkpoint = str(previous.dir)
     command = ["lab", "train", "--task", task, "--framework", framework,
                "--max-iterations", str(lab["iterations"]), "--run-name", name,
@@ -123,6 +127,10 @@ def run_trial(config: dict[str, Any]) -> None:
     training.train(task, framework, max_iterations=lab["iterations"], run_name=name,
                    overrides=overrides, checkpoint=checkpoint, logs_dir=logs_dir,
                    console=Console(quiet=True), command=command, on_iteration=reporter)
+    _end(reporter)
+
+
+def _end(reporter: Reporter) -> None:
     if reporter.stopped:
         # As Tune's own report would have: the thread ends here, reporting nothing more.
         raise SystemExit(0)
@@ -181,9 +189,10 @@ def start(address: str | None, cores: int) -> bool:
         ray.init(address=address or LOCAL, **options)
     except (ConnectionError, RuntimeError, ValueError) as exc:
         raise LabError(f"cannot {'join Ray at ' + address if address else 'start Ray'}: "
-                       f"{_first_line(exc)}",
-                       "check --address (ray://HOST:10001 or HOST:6379), and that the cluster "
-                       "runs the same Ray" if address else "see Ray's logs in /tmp/ray") from None
+                       f"{first_line(exc)}",
+                       "check --address (ray://HOST:10001 or HOST:6379), that the cluster runs "
+                       "the same Ray, and RAY_AUTH_MODE=token where it asks for a token"
+                       if address else "see Ray's logs in /tmp/ray") from None
     return True
 
 
@@ -195,12 +204,6 @@ def stop(started: bool) -> None:
 def resources() -> dict[str, float]:
     """What the cluster has: {"CPU": ..., "GPU": ...}."""
     return dict(ray.cluster_resources())
-
-
-def _first_line(exc: BaseException) -> str:
-    from labcli.errors import first_line
-
-    return first_line(exc)
 
 
 # Tuner -------------------------------------------------------------------------------------
@@ -253,6 +256,11 @@ def make_tuner(sweep_dir: Path, *, param_space: dict[str, Any], samples: int, me
                                   verbose=0, callbacks=[progress]))
 
 
+NEW_OUTPUT = "RAY_AIR_NEW_OUTPUT"
+# Where Tune logs a failed trial with its traceback, and the trials that did not complete.
+TUNE_LOGGERS = ("ray.tune.execution.tune_controller", "ray.tune.tune")
+
+
 def fit(tuner: tune.Tuner) -> None:
     """Run the sweep, Tune's own output left out: the sweep prints its progress (Progress) and
     its table, with each failed trial's error. Tune's newer output engine prints its header
@@ -273,10 +281,6 @@ def fit(tuner: tune.Tuner) -> None:
         else:
             os.environ[NEW_OUTPUT] = previous
 
-
-NEW_OUTPUT = "RAY_AIR_NEW_OUTPUT"
-# Where Tune logs a failed trial with its traceback, and the trials that did not complete.
-TUNE_LOGGERS = ("ray.tune.execution.tune_controller", "ray.tune.tune")
 
 
 class _SaidInTheTable(logging.Filter):
