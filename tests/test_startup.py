@@ -12,7 +12,8 @@ import textwrap
 
 import pytest
 
-HEAVY = ("torch", "mujoco", "stable_baselines3", "rsl_rl", "skrl", "gymnasium", "warp")
+HEAVY = ("torch", "mujoco", "stable_baselines3", "rsl_rl", "skrl", "gymnasium", "warp", "ray",
+         "optuna")
 # Runs a command in a fresh interpreter, as the console script does, and prints the heavy
 # modules it imported.
 PROBE = textwrap.dedent("""
@@ -41,7 +42,7 @@ def heavy_imports(*args: str, env: dict[str, str] | None = None, logs) -> tuple[
 
 @pytest.mark.parametrize("args", [["--help"], ["--version"], ["list"], ["runs"],
                                   ["config", "show", "--task", "cartpole", "--framework", "sb3"],
-                                  ["train", "--help"]])
+                                  ["train", "--help"], ["sweep", "--help"]])
 def test_light_commands_import_no_heavy_library(args, tmp_path):
     heavy, out = heavy_imports(*args, logs=tmp_path)
     assert heavy == "", f"lab {' '.join(args)} imported {heavy}"
