@@ -236,3 +236,20 @@ def test_sigterm_to_one_rank_stops_them_all_with_a_checkpoint(tmp_path):
     summary = json.loads((run_dir / rundir.SUMMARY).read_text())
     assert summary["state"] == rundir.INTERRUPTED
     assert summary["checkpoint"] == f"model_{summary['iterations']}.pt"
+
+
+def test_torchrun_starts_the_same_run(tmp_path):
+    """The documented equivalent of `lab train --nproc 2`: torchrun's own launcher."""
+    result = subprocess.run(
+        [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc-per-node", "2",
+         "-m", "labcli", "train", "--task", "cartpole", "--framework", "skrl", "--backend",
+         "cpu", "--num-envs", "8", "--max-iterations", "2", *(
+             arg for setting in SMALL["skrl"] for arg in ("--set", setting))],
+        capture_output=True, text=True, env={**os.environ, "LAB_LOGS_DIR": str(tmp_path)},
+        timeout=120)
+    assert result.returncode == 0, result.stderr
+    (run_dir,) = (tmp_path / "skrl" / "cartpole").iterdir()
+    summary = json.loads((run_dir / rundir.SUMMARY).read_text())
+    assert summary["state"] == rundir.FINISHED
+    assert summary["steps"] == 2 * STEPS_PER_ENV * 8 * 2
+    assert result.stdout.count(str(run_dir)) == 1  # rank 0 alone says where the run is
