@@ -82,13 +82,25 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
-def _rank(rank: int, tmp: str, framework: str, port: int) -> None:
+def _rank(rank: int, tmp: str, framework: str, port: int, late_sigterm: bool = False) -> None:
     """One rank: torchrun's variables, then `lab train` as a library call. Every checkpoint is
     also written by every rank into tmp/rank<r>/ (a spy on RunContext.save, through the
-    framework's own save), so that the ranks' agents can be compared."""
+    framework's own save), so that the ranks' agents can be compared. `late_sigterm`: rank 1
+    is sent SIGTERM just after the ranks agreed, after iteration 1, that none was stopped."""
     os.environ.update(RANK=str(rank), LOCAL_RANK=str(rank), WORLD_SIZE="2",
                       LOCAL_WORLD_SIZE="2", MASTER_ADDR="127.0.0.1", MASTER_PORT=str(port))
-    from labcli.runs import context, training
+    from labcli.runs import context, distributed, training
+
+    if late_sigterm and rank == 1:
+        agree = distributed.agreed_stop
+
+        def agree_then_receive_sigterm(signum, device):
+            agreed = agree(signum, device)
+            if signum is None:
+                signal.raise_signal(signal.SIGTERM)
+            return agreed
+
+        distributed.agreed_stop = agree_then_receive_sigterm
 
     original = context.RunContext.save
 
@@ -146,6 +158,18 @@ def test_two_gloo_ranks_train_one_agent(tmp_path, framework):
     state = snapshot.load(snapshot.path_of(run_dir, ITERATIONS))
     (other,) = state["ranks"]
     assert not torch.equal(state["env"]["qpos"], other["env"]["qpos"])
+
+
+def test_a_signal_just_after_the_ranks_agreed_counts_at_the_next_iteration(tmp_path):
+    """Decided on its own flag, rank 1 would stop after iteration 1 and leave rank 0 waiting in
+    iteration 2's update; both stop after iteration 2 instead, checkpointed."""
+    mp.start_processes(_rank, args=(str(tmp_path), "rsl_rl", _free_port(), True), nprocs=2,
+                       start_method="spawn")
+    summaries = [json.loads((tmp_path / f"summary{r}.json").read_text()) for r in (0, 1)]
+    assert [(s["state"], s["iterations"], s["signal"]) for s in summaries] == [
+        (rundir.INTERRUPTED, 2, signal.SIGTERM)] * 2
+    (run_dir,) = (tmp_path / "logs0" / "rsl_rl" / "cartpole").iterdir()
+    assert json.loads((run_dir / rundir.SUMMARY).read_text())["checkpoint"] == "model_2.pt"
 
 
 # Two ranks, as `lab train --nproc 2` starts them ----------------------------------------------

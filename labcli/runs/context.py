@@ -160,14 +160,18 @@ class RunContext(TrainContext):
                                  self.last_stats.get(metrics.SUCCESS_RATE))
             if self.on_iteration is not None and self.on_iteration(iteration, steps, figures):
                 self.stop.request()
+        stopping = self.stop_requested
         if self.ranks.active:
+            # Every rank decides on the agreed signal alone: one that arrives after the
+            # agreement counts at the next, else this rank would leave the others mid-update.
             agreed = distributed.agreed_stop(self.stop.signum, self.device)
-            if agreed is not None:
+            stopping = agreed is not None
+            if stopping:
                 self.stop.request(agreed)
-        last = iteration >= self.cfg.max_iterations
-        if last or self.stop_requested or iteration % self.cfg.save_interval == 0:
+        stopping = stopping or iteration >= self.cfg.max_iterations
+        if stopping or iteration % self.cfg.save_interval == 0:
             self.save(save)
-        return last or self.stop_requested
+        return stopping
 
     def _summed(self, totals: torch.Tensor) -> torch.Tensor:
         return distributed.summed(totals, self.device)
