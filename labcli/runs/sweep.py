@@ -231,7 +231,8 @@ class TrialFit:
 
     def describe(self) -> str:
         each = ", ".join(f"{value:g} {key.upper()}" for key, value in self.resources.items())
-        return f"{self.concurrent} trials at a time, each on {each}"
+        trials = "1 trial" if self.concurrent == 1 else f"{self.concurrent} trials"
+        return f"{trials} at a time, each on {each}"
 
 
 def fit_trials(cluster: dict[str, float], gpu: bool, fixed: Sequence[str],
