@@ -180,7 +180,9 @@ ENDLESS = ["--backend", "cpu", "--num-envs", "8", "--max-iterations", "1000000",
 def _start(logs: Path, *args: str) -> subprocess.Popen:
     return subprocess.Popen(
         [sys.executable, "-m", "labcli", "train", "--task", "cartpole", "--framework", "rsl_rl",
-         "--nproc", "2", *args], env={**os.environ, "LAB_LOGS_DIR": str(logs)},
+         "--nproc", "2", *args],
+        # A rank that aborts (a C++ terminate) then shows where it was, in the failure's stderr.
+        env={**os.environ, "LAB_LOGS_DIR": str(logs), "PYTHONFAULTHANDLER": "1"},
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
 
