@@ -3,9 +3,9 @@ torchrun's launcher in-process: labcli/runs/launcher.py) starts one process per 
 LOCAL_RANK and WORLD_SIZE set. Each steps its own envs, seeded apart, and trains the same agent,
 whose library averages the gradients over the ranks (RSL-RL's and skrl's own code). lab sets up
 the process group before the library is imported: gloo on the CPU, NCCL on GPUs (both libraries
-would ask for NCCL, which has no CPU). Rank 0 alone writes the run dir; lab itself adds one tiny
-collective per iteration (episode figures and the stop request) and a gather at checkpoints
-(every rank's episodes in flight)."""
+would ask for NCCL, which has no CPU). Rank 0 alone writes the run dir; lab itself adds two tiny
+collectives per iteration (the episode figures' totals, summed, and the stop request, agreed
+on) and a gather at checkpoints (every rank's episodes in flight)."""
 
 from __future__ import annotations
 

@@ -36,7 +36,10 @@ class TrainPlan:
     ranks: int = 1  # data-parallel processes, each with env_cfg.num_envs envs
 
     @property
-    def new_run_parent(self) -> Path:
+    def write_dir(self) -> Path:
+        """Where the run writes: the resumed run's dir, or the folder a new one goes into."""
+        if self.run is not None:
+            return self.run.dir
         return self.logs_dir / self.framework.name / self.spec.name
 
     def describe(self) -> str:

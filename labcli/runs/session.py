@@ -23,9 +23,9 @@ from torch.utils.tensorboard import SummaryWriter
 from labcli import __version__, files
 from labcli.envs import metrics, mjwarnings, wrappers
 from labcli.envs.config import TaskConfig
+from labcli.envs.cores import cores
 from labcli.envs.make import make_env
 from labcli.envs.sim import WARP_INSTALL_HINT, default_backend
-from labcli.envs.sim.cpu import cores
 from labcli.errors import LabError
 from labcli.plugins import registry
 from labcli.plugins.config import AgentConfig
@@ -106,7 +106,7 @@ class _Session:
         if ranks.writer:
             # Before any simulation: a run that cannot be written must not cost a minute of
             # start-up.
-            rundir.check_writable(run_.dir if run_ is not None else plan.new_run_parent)
+            rundir.check_writable(plan.write_dir)
         before = _previous(run_)
 
         seed = agent_cfg.seed + ranks.rank  # each rank its own episodes and exploration
@@ -321,8 +321,7 @@ def _run_training(fw: Framework, env: Any, cfg: AgentConfig, run: rundir.Run,
             else f"{env.num_envs} envs")
     description = f"{fw.name} · {env.task_spec.name} · {envs}"
     writer = SummaryWriter(log_dir=str(run.dir)) if ranks.writer else _NoWriter()
-    progress = TrainProgress(cfg.max_iterations, description,
-                             console if ranks.writer else Console(quiet=True),
+    progress = TrainProgress(cfg.max_iterations, description, console,
                              start=resume.iteration if resume else 0)
     ctx = RunContext(cfg=cfg, env=env, framework=fw, run_dir=run.dir, seed=cfg.seed,
                      device=device, progress=progress, writer=writer, resume=resume,

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
 import signal
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
@@ -23,6 +22,7 @@ from typing import TYPE_CHECKING, Any
 from rich.console import Console
 
 from labcli import files
+from labcli.envs.cores import cores
 from labcli.errors import Interrupted, LabError
 from labcli.runs import config, interrupt, rundir, space
 from labcli.runs.plan import gpu_scale, plan
@@ -212,13 +212,6 @@ def _check_name(name: str) -> None:
                        "/ \\ :, no spaces, not starting with . or -")
 
 
-def _cores() -> int:
-    """Cores this process may run on (a taskset or cpuset narrows them)."""
-    if hasattr(os, "sched_getaffinity"):
-        return len(os.sched_getaffinity(0))
-    return os.cpu_count() or 1
-
-
 @dataclass
 class TrialFit:
     """How trials share the cluster: Ray's resources for each, how many run at once, and the
@@ -287,7 +280,7 @@ def _run(spec: SweepSpec, sweep_dir: Path, drawn: space.Space, gpu: bool, addres
     with interrupt.deferred(interrupt.StopRequest(interrupt.startup.signum)) as stop:
         from labcli.runs import tuning
 
-        started = tuning.start(address, _cores())
+        started = tuning.start(address, cores())
         try:
             fit = fit_trials(tuning.resources(), gpu, spec.fixed, spec.max_concurrent)
             console.print(fit.describe(), highlight=False)

@@ -68,7 +68,7 @@ def launch(launch: Launch, argv: Sequence[str], task: str, framework: str, *,
         raise LabError("--nproc inside a rank that torchrun started",
                        "leave out --nproc under torchrun, or run lab train --nproc alone")
     the_plan = plan(task, framework, ranks=launch.check(), **options)
-    rundir.check_writable(the_plan.run.dir if the_plan.run else the_plan.new_run_parent)
+    rundir.check_writable(the_plan.write_dir)
     import torch
 
     from labcli.runs.launcher import launch as run_ranks

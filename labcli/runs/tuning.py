@@ -32,12 +32,12 @@ from labcli.envs import metrics
 from labcli.errors import LabError, first_line
 from labcli.plugins import registry
 from labcli.runs import checkpoints, rundir, space
+from labcli.runs.sweep import METRICS as SUMMARY_FIELDS
 from labcli.runs.sweep import format_metric
 
 # The figures each report carries (fixed from the first report on: Tune's CSV log keeps the
 # columns of the first one). The two metrics are lab's shared TensorBoard tags.
 METRICS = {"success": metrics.SUCCESS_RATE, "return": metrics.MEAN_RETURN}
-SUMMARY_FIELDS = {"success": "success_rate", "return": "mean_return"}
 STEPS = "steps"
 # Config key of the settings every trial shares (the rest of a trial's config is what it drew).
 LAB = "lab"

@@ -4,7 +4,6 @@ calling thread and one worker thread, each its share of them; on more, MuJoCo's 
 from __future__ import annotations
 
 import copy
-import os
 import threading
 import time
 import weakref
@@ -15,6 +14,7 @@ import numpy as np
 import torch
 from mujoco import rollout
 
+from labcli.envs.cores import cores
 from labcli.envs.sim import Sim
 
 FULL = mujoco.mjtState.mjSTATE_FULLPHYSICS
@@ -28,14 +28,6 @@ def _state_slice(model: mujoco.MjModel, part: mujoco.mjtState) -> slice:
         if bit < part.value and bit & FULL.value
     )
     return slice(start, start + mujoco.mj_stateSize(model, part))
-
-
-def cores() -> int:
-    """Cores this process may run on: a taskset or cpuset narrows them below the machine's,
-    and more rollout threads than cores only queue for them."""
-    if hasattr(os, "sched_getaffinity"):
-        return len(os.sched_getaffinity(0))
-    return os.cpu_count() or 1
 
 
 class _Worker:
