@@ -28,6 +28,7 @@ from torch import nn
 
 from lab_sb3.config import Sb3PPOConfig
 from lab_sb3.plugin import ADAPTER, VEC_NORMALIZE
+from lab_sb3.ppo import DeviceRolloutBuffer, LabPPO
 from labcli import files
 from labcli.envs.wrappers import Step
 from labcli.errors import LabError, first_line
@@ -92,12 +93,15 @@ class Sb3Framework(Framework):
 
     def train(self, env: Any, ctx: TrainContext) -> None:
         cfg: Sb3PPOConfig = ctx.cfg  # type: ignore[assignment]
-        model = PPO(
+        on_gpu = torch.device(ctx.device).type == "cuda"
+        model = LabPPO(
             "MlpPolicy", env, n_steps=cfg.n_steps, batch_size=cfg.batch_size,
             n_epochs=cfg.n_epochs, learning_rate=cfg.learning_rate, gamma=cfg.gamma,
             gae_lambda=cfg.gae_lambda, clip_range=cfg.clip_range, ent_coef=cfg.ent_coef,
             vf_coef=cfg.vf_coef, max_grad_norm=cfg.max_grad_norm, target_kl=cfg.target_kl,
-            policy_kwargs=policy_kwargs(cfg), seed=ctx.seed, device=ctx.device, verbose=0)
+            policy_kwargs=policy_kwargs(cfg), seed=ctx.seed, device=ctx.device, verbose=0,
+            # On the CPU SB3's own buffer stays: lab's CPU figures and defaults were measured with it.
+            rollout_buffer_class=DeviceRolloutBuffer if on_gpu else None)
         if ctx.resume is not None:
             saved = read_checkpoint(ctx.resume.path, ctx.device)
             load_weights(model.policy, saved, ctx.resume.path, ctx.env)
