@@ -224,7 +224,7 @@ def test_unreadable_checkpoints_raise_lab_error(tmp_path, trained, content):
 
 @pytest.mark.slow
 def test_cartpole_defaults_reach_success(tmp_path):
-    from labcli import play  # `lab play`'s library side
+    from labcli.runs import play  # `lab play`'s library side
 
     outcome = training.train("cartpole", "rsl_rl", logs_dir=tmp_path,
                              console=Console(file=io.StringIO()))

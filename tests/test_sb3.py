@@ -150,7 +150,7 @@ def test_corrupt_checkpoints_raise_lab_error(tmp_path, content):
 
 @pytest.mark.slow
 def test_cartpole_defaults_reach_success(tmp_path):
-    from labcli import play
+    from labcli.runs import play
 
     outcome = training.train("cartpole", "sb3", logs_dir=tmp_path,
                              console=Console(file=io.StringIO()))

@@ -100,7 +100,7 @@ class Sb3Framework(Framework):
             gae_lambda=cfg.gae_lambda, clip_range=cfg.clip_range, ent_coef=cfg.ent_coef,
             vf_coef=cfg.vf_coef, max_grad_norm=cfg.max_grad_norm, target_kl=cfg.target_kl,
             policy_kwargs=policy_kwargs(cfg), seed=ctx.seed, device=ctx.device, verbose=0,
-            # On the CPU SB3's own buffer stays: lab's CPU figures and defaults were measured with it.
+            # On the CPU SB3's own buffer stays: lab's CPU figures were measured with it.
             rollout_buffer_class=DeviceRolloutBuffer if on_gpu else None)
         if ctx.resume is not None:
             saved = read_checkpoint(ctx.resume.path, ctx.device)

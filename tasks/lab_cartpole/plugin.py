@@ -19,8 +19,10 @@ def register_tasks(register):
         description="push a cart to swing its pole upright from up to ±45° and balance it",
         success="pole within 0.2 rad of upright and cart in bounds at the 5 s time-out",
         framework_defaults={
+            # 10 epochs: on this project's 2-core VM success 0.95 after a median 14.2 s
+            # (seeds 0-5), against 17.1 s with 20; deterministic play 97-98% (20: 77-99%).
             "sb3": {"env": {"num_envs": 128}, "agent": {
-                "max_iterations": 150, "n_steps": 32, "batch_size": 1024, "n_epochs": 20,
+                "max_iterations": 150, "n_steps": 32, "batch_size": 1024, "n_epochs": 10,
                 "learning_rate": 5e-4, "activation": "elu", "vf_coef": 1.0,
                 "max_grad_norm": 1.0,
                 # Cartpole's observations are O(1) already; VecNormalize's moving statistics
