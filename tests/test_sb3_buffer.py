@@ -1,7 +1,9 @@
-"""lab's SB3 PPO (lab_sb3.ppo) against SB3's own: the device rollout buffer gives SB3's returns,
-advantages and mini-batches, and a whole training run with it ends with SB3's parameters and
-episode figures. Run on the CPU here (the buffer is device-agnostic torch); on a GPU it is what
-`lab train --framework sb3` uses."""
+"""lab's faster parts of SB3 against SB3's own: the device rollout buffer (lab_sb3.ppo) gives SB3's
+returns, advantages and mini-batches, and a whole training run with it ends with SB3's
+parameters and episode figures; the batched VecNormalize gives VecNormalize's observations,
+rewards, last observations and statistics; a zip without the last observations loads and trains
+on in plain SB3. Run on the CPU here (the buffer is device-agnostic torch); on a GPU the buffer is
+what `lab train --framework sb3` uses."""
 
 from __future__ import annotations
 
@@ -12,10 +14,11 @@ import gymnasium as gym
 import numpy as np
 import pytest
 import torch
-from lab_sb3.adapter import Sb3VecEnv
+from lab_sb3.adapter import BatchedVecNormalize, Sb3VecEnv
 from lab_sb3.ppo import DeviceRolloutBuffer, LabPPO
 from stable_baselines3 import PPO
 from stable_baselines3.common.buffers import RolloutBuffer
+from stable_baselines3.common.vec_env import VecNormalize
 
 from labcli import testing
 
@@ -85,12 +88,16 @@ def test_lab_ppo_zip_loads_with_plain_sb3(tmp_path):
     model.save(tmp_path / "model.zip")
     with zipfile.ZipFile(tmp_path / "model.zip") as archive:
         data = json.loads(archive.read("data"))
-    assert "rollout_buffer_class" not in data and "rollout_buffer_kwargs" not in data
-    loaded = PPO.load(tmp_path / "model.zip", device="cpu")
+    assert not {"rollout_buffer_class", "rollout_buffer_kwargs", "_last_obs",
+                "_last_episode_starts", "_last_original_obs"} & set(data)
+    env = Sb3VecEnv(testing.make_env(episode_length_s=0.1))
+    loaded = PPO.load(tmp_path / "model.zip", env=env, device="cpu")
     assert type(loaded.rollout_buffer) is RolloutBuffer
     obs = np.zeros((1, 4), dtype=np.float32)
     np.testing.assert_allclose(loaded.predict(obs, deterministic=True)[0],
                                model.predict(obs, deterministic=True)[0])
+    loaded.learn(total_timesteps=8 * env.num_envs, reset_num_timesteps=False)  # SB3 resets
+    assert loaded.num_timesteps == model.num_timesteps + 8 * env.num_envs
 
 
 @pytest.mark.parametrize("dones", [None, np.array([False, True, False])])
@@ -102,3 +109,27 @@ def test_lab_ppo_reads_the_ended_envs_infos(dones):
     model._update_info_buffer([{}, {"episode": episode, "is_success": True}, {}], dones)
     assert list(model.ep_info_buffer) == [episode]
     assert list(model.ep_success_buffer) == ([] if dones is None else [True])
+
+
+def test_batched_vec_normalize_gives_sb3s_vec_normalize():
+    ours, sb3 = (cls(Sb3VecEnv(testing.make_env(episode_length_s=0.1)), norm_reward=True)
+                 for cls in (BatchedVecNormalize, VecNormalize))
+    np.testing.assert_array_equal(ours.reset(), sb3.reset())
+    rng = np.random.default_rng(0)
+    ended = 0
+    for _ in range(12):
+        actions = rng.uniform(-1, 1, (ours.num_envs, 1)).astype(np.float32)
+        a, b = ours.step(actions), sb3.step(actions)
+        for x, y in zip(a[:3], b[:3], strict=True):
+            np.testing.assert_array_equal(x, y)
+        for x, y in zip(a[3], b[3], strict=True):
+            assert x.keys() == y.keys()
+            if "terminal_observation" in x:
+                ended += 1
+                assert x["terminal_observation"].dtype == np.float32
+                np.testing.assert_array_equal(x["terminal_observation"],
+                                              y["terminal_observation"])
+    assert ended >= ours.num_envs  # every env ended at least once
+    np.testing.assert_array_equal(ours.obs_rms.var, sb3.obs_rms.var)
+    np.testing.assert_array_equal(ours.ret_rms.var, sb3.ret_rms.var)
+    np.testing.assert_array_equal(ours.get_original_obs(), sb3.get_original_obs())

@@ -12,6 +12,7 @@ from typing import Any
 
 import numpy as np
 import torch
+from stable_baselines3.common.vec_env import VecNormalize
 from stable_baselines3.common.vec_env.base_vec_env import VecEnv
 
 
@@ -69,3 +70,26 @@ class Sb3VecEnv(VecEnv):
         if indices is None:
             return range(self.num_envs)
         return [indices] if isinstance(indices, int) else list(indices)
+
+
+class BatchedVecNormalize(VecNormalize):
+    """SB3's VecNormalize, with the ended envs' last observations normalized as one batch: SB3
+    normalizes each on its own (a deep copy and a clip, ~30 µs each: 4 ms a step when 126 of
+    4,096 humanoids fall in one). Otherwise SB3's `step_wait`, for lab's array observations."""
+
+    def step_wait(self):
+        obs, rewards, dones, infos = self.venv.step_wait()
+        self.old_obs, self.old_reward = obs, rewards
+        if self.training and self.norm_obs:
+            self.obs_rms.update(obs)
+        obs = self.normalize_obs(obs)
+        if self.training:
+            self._update_reward(rewards)
+        rewards = self.normalize_reward(rewards)
+        ended = [i for i in np.flatnonzero(dones) if "terminal_observation" in infos[i]]
+        if ended:
+            last = self.normalize_obs(np.stack([infos[i]["terminal_observation"] for i in ended]))
+            for i, row in zip(ended, last, strict=True):
+                infos[i]["terminal_observation"] = row
+        self.returns[dones] = 0
+        return obs, rewards, dones, infos

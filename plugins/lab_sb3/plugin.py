@@ -8,8 +8,8 @@ from labcli.plugins.hookspecs import hookimpl
 ADAPTER = WrapperSpec("sb3.adapter", Stage.ADAPTER, "lab_sb3.adapter:Sb3VecEnv", framework="sb3",
                       description="torch VectorEnv → SB3 VecEnv (numpy), time-outs flagged")
 VEC_NORMALIZE = WrapperSpec(
-    "sb3.vec_normalize", Stage.FRAMEWORK, "stable_baselines3.common.vec_env:VecNormalize",
-    framework="sb3", description="SB3's running observation/reward normalization")
+    "sb3.vec_normalize", Stage.FRAMEWORK, "lab_sb3.adapter:BatchedVecNormalize",
+    framework="sb3", description="SB3's running observation/reward normalization (VecNormalize)")
 
 SPEC = FrameworkSpec(
     name="sb3", framework="lab_sb3.framework:Sb3Framework",

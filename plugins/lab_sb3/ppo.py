@@ -109,5 +109,8 @@ class LabPPO(PPO):
 
     def _excluded_save_params(self) -> list[str]:
         # The buffer's class is a choice of this process, not the model's: a zip without it
-        # loads with plain `PPO.load`, and without lab installed.
-        return [*super()._excluded_save_params(), "rollout_buffer_class", "rollout_buffer_kwargs"]
+        # loads with plain `PPO.load`, and without lab installed. The last observations are the
+        # env's, which a resumed run restores itself (SB3 resets its env when they are missing):
+        # SB3 pickles and prints them into the zip's JSON, 40 of a save's 50 ms at 4,096 envs.
+        return [*super()._excluded_save_params(), "rollout_buffer_class", "rollout_buffer_kwargs",
+                "_last_obs", "_last_episode_starts", "_last_original_obs"]
