@@ -1,9 +1,10 @@
 """SB3's PPO with less host work per step, through SB3's own extension points: its
 `rollout_buffer_class` and a subclass. The updates are SB3's.
 
-With thousands of envs, SB3's per-env Python dominates an iteration on a GPU (humanoid, 4,096
-envs, one H100: of 1.17 s an iteration, 0.50 s in the update, 0.29 s of it SB3's buffer indexing
-NumPy arrays and copying each mini-batch to the device; 0.45 s of the rollout outside the env).
+With thousands of envs, SB3's host-side NumPy work dominates an iteration on a GPU (humanoid,
+4,096 envs, one H100: of 1.17 s an iteration, 0.50 s in the update, 0.29 s of it SB3's buffer
+indexing NumPy arrays and copying each mini-batch to the device; 0.45 s of the rollout outside
+the env).
 """
 
 from __future__ import annotations
