@@ -41,19 +41,18 @@ class DeviceRolloutBuffer(RolloutBuffer):
             self._tensors = {name: torch.zeros((steps, envs, *shapes.get(name, ())),
                                                dtype=torch.float32, device=self.device)
                              for name in FIELDS}
-        self._flat: dict[str, torch.Tensor] | None = None
-        self.generator_ready = False
+        self._flat: dict[str, torch.Tensor] | None = None  # the rollout as get() samples it
         self.pos, self.full = 0, False
 
     def add(self, obs: np.ndarray, action: np.ndarray, reward: np.ndarray,
             episode_start: np.ndarray, value: torch.Tensor, log_prob: torch.Tensor) -> None:
-        row = {name: tensor[self.pos] for name, tensor in self._tensors.items()}
-        row["observations"].copy_(torch.as_tensor(obs).reshape(row["observations"].shape))
-        row["actions"].copy_(torch.as_tensor(action).reshape(row["actions"].shape))
-        row["rewards"].copy_(torch.as_tensor(reward))
-        row["episode_starts"].copy_(torch.as_tensor(episode_start))
-        row["values"].copy_(value.reshape(-1))
-        row["log_probs"].copy_(log_prob.reshape(-1))
+        t, pos = self._tensors, self.pos
+        t["observations"][pos].copy_(torch.as_tensor(obs).reshape(t["observations"].shape[1:]))
+        t["actions"][pos].copy_(torch.as_tensor(action).reshape(t["actions"].shape[1:]))
+        t["rewards"][pos].copy_(torch.as_tensor(reward))
+        t["episode_starts"][pos].copy_(torch.as_tensor(episode_start))
+        t["values"][pos].copy_(value.reshape(-1))
+        t["log_probs"][pos].copy_(log_prob.reshape(-1))
         self.pos += 1
         self.full = self.pos == self.buffer_size
 
@@ -87,7 +86,6 @@ class DeviceRolloutBuffer(RolloutBuffer):
         if self._flat is None:  # SB3's swap_and_flatten: [n_envs * n_steps, ...], env-major
             self._flat = {name: tensor.swapaxes(0, 1).reshape(total, *tensor.shape[2:])
                           for name, tensor in self._tensors.items()}
-            self.generator_ready = True
         size = total if batch_size is None else batch_size
         flat = self._flat
         for start in range(0, total, size):
