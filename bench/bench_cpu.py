@@ -3,6 +3,8 @@
   python bench/bench_cpu.py [--envs 16,256,1024] [--seconds 3] [--repeats 3] [--peers DIR]
                             [--frameworks sb3,rsl_rl,skrl,rl_games] [--skip-train] [--json FILE]
   python bench/bench_cpu.py --profile 256     (only: lab's env step by part, in microseconds)
+  python bench/bench_cpu.py --threads 2,4,8,16 [--tasks cartpole,ant,humanoid] [--envs 1024,4096]
+                            [--train rsl_rl]    (only d)
 
 a) env-steps/s of lab's cartpole (`LabVecEnv`, cpu backend, random actions, autoreset, torch
    tensors out) beside ../shared/peers/bench_step.py (run as a subprocess: raw `mujoco.rollout`,
@@ -12,6 +14,9 @@ b) the SB3 / RSL-RL / skrl / rl_games adapters' cost per step at 256 envs, over 
 c) time until `lab train --task cartpole --framework F` first logs Metrics/success_rate >= 0.95
    (from its TensorBoard events), beside the peers' train_sb3_gym.py / train_rsl_rl_gym.py
    (seconds until mean return 950 on InvertedPendulum-v5: another criterion, so a rough ratio).
+d) with --threads: lab's env-steps/s of each task at each thread count beside raw
+   `mujoco.rollout` of what the env steps on as many threads (`lab bench --threads`), and with
+   --train the training steps/s of cartpole with that framework at each thread count.
 
 Machines are noisy: each throughput figure is the median of --repeats interleaved runs, and the
 load average is printed before and after. Nothing here asserts a timing; it prints figures.
@@ -44,7 +49,7 @@ from rich.table import Table
 from labcli.envs.env import LabVecEnv
 from labcli.plugins import registry
 from labcli.plugins.policy import one_torch_thread
-from labcli.runs.bench import env_rate, rate, time_to_success
+from labcli.runs.bench import bench, env_rate, rate, time_to_success, train_rate
 
 REPO = Path(__file__).resolve().parents[1]
 TASK = "cartpole"
@@ -257,6 +262,45 @@ def profile_table(num_envs: int, parts: dict[str, float]) -> None:
     console.print(table)
 
 
+# Threads --------------------------------------------------------------------------------------
+def thread_rates(tasks: list[str], envs: list[int], threads: list[int], seconds: float,
+                 repeats: int, framework: str | None) -> dict[tuple[str, int, int], dict]:
+    """Medians by (task, threads, N) of lab's and the rollout's env-steps/s and their ratio,
+    the repeats interleaved; with `framework`, cartpole's training steps/s too."""
+    runs: dict[tuple[str, int, int], dict[str, list[float]]] = defaultdict(
+        lambda: defaultdict(list))
+    for repeat in range(repeats):
+        console.print(f"  threads, repeat {repeat + 1}/{repeats}", highlight=False)
+        for task in tasks:
+            for row in bench(task, envs, backend="cpu", seconds=seconds, threads=threads):
+                figures = runs[task, row.threads, row.num_envs]
+                figures["lab"].append(row.env_steps_per_s)
+                figures["rollout"].append(row.rollout_steps_per_s)
+                figures["ratio"].append(row.ratio_to_rollout)
+        if framework:
+            for t in threads:
+                for n in envs:
+                    runs[TASK, t, n]["train"].append(train_rate(
+                        TASK, framework, n, "cpu", "cpu", [f"env.threads={t}"]))
+    return {key: {what: statistics.median(values) for what, values in figures.items()}
+            for key, figures in runs.items()}
+
+
+def thread_table(rates: dict[tuple[str, int, int], dict], framework: str | None) -> None:
+    table = Table(title="d) env-steps/s by physics threads, lab beside mujoco.rollout (median)")
+    for col in ("task", "threads", "N", "lab", "rollout", "lab / rollout"):
+        table.add_column(col, justify="right")
+    if framework:
+        table.add_column(f"{framework} training steps/s", justify="right")
+    for (task, threads, n), r in rates.items():
+        cells = [task, str(threads), str(n), fmt(r["lab"]), fmt(r["rollout"]),
+                 f"{r['ratio']:.2f}"]
+        if framework:
+            cells.append(fmt(r.get("train")))
+        table.add_row(*cells)
+    console.print(table)
+
+
 # Report ---------------------------------------------------------------------------------------
 def header() -> dict:
     cpu = platform.processor() or platform.machine()
@@ -349,12 +393,22 @@ def main() -> None:
     p.add_argument("--json", type=Path, help="also write the figures here")
     p.add_argument("--profile", type=int, metavar="N",
                    help="only break lab's env step down by part at N envs")
+    p.add_argument("--threads", help="only d): these physics thread counts, e.g. 2,4,8,16")
+    p.add_argument("--tasks", default=TASK, help="d)'s tasks, e.g. cartpole,ant,humanoid")
+    p.add_argument("--train", metavar="FRAMEWORK", help="d): also cartpole's training steps/s")
     a = p.parse_args()
     if a.profile:
         profile_table(a.profile, profile(a.profile))
         return
     envs = [int(x) for x in a.envs.split(",") if x]
     results: dict = {"command": " ".join(sys.argv), "machine": header()}
+    if a.threads:
+        rates = thread_rates(a.tasks.split(","), envs, [int(t) for t in a.threads.split(",")],
+                             a.seconds, a.repeats, a.train)
+        thread_table(rates, a.train)
+        results["threads"] = {f"{task}@{t}@{n}": r for (task, t, n), r in rates.items()}
+        finish(results, a.json)
+        return
 
     rates = throughput(envs, a.seconds, a.repeats, a.peers)
     throughput_table(rates, envs)
@@ -371,11 +425,15 @@ def main() -> None:
         train_table(lab, peers)
         results["train"], results["train_peers"] = lab, peers
 
+    finish(results, a.json)
+
+
+def finish(results: dict, path: Path | None) -> None:
     results["machine"]["load_after"] = os.getloadavg()
     console.print(f"load average after: {fmt_load(results['machine']['load_after'])}",
                   highlight=False)
-    if a.json:
-        a.json.write_text(json.dumps(results, indent=1))
+    if path:
+        path.write_text(json.dumps(results, indent=1))
 
 
 if __name__ == "__main__":

@@ -187,14 +187,16 @@ def test_bench_prints_env_and_training_rates_as_json(tmp_path):
     assert not (tmp_path / "logs").exists()  # the training runs are thrown away
 
 
-def test_bench_threads_sets_the_cpu_backends_physics_threads(tmp_path):
-    result = lab("bench", "--task", "cartpole", "--num-envs", "4", "--seconds", "0.1",
-                 "--threads", "1", "--json", logs=tmp_path)
+def test_bench_threads_measures_each_thread_count_beside_the_rollout(tmp_path):
+    result = lab("bench", "--task", "cartpole", "--num-envs", "4,6", "--seconds", "0.1",
+                 "--threads", "1,2", "--json", logs=tmp_path)
     assert result.exit_code == 0, result.output
-    (row,) = json.loads(result.stdout)
-    assert row["threads"] == 1 and row["env_steps_per_s"] > 0
+    rows = json.loads(result.stdout)
+    assert [(row["threads"], row["num_envs"]) for row in rows] == [(1, 4), (1, 6), (2, 4), (2, 6)]
+    assert all(row["rollout_steps_per_s"] > 0 and row["ratio_to_rollout"] > 0 for row in rows)
     bad = lab("bench", "--task", "cartpole", "--threads", "0", logs=tmp_path)
-    assert bad.exit_code == 2 and bad.stderr.startswith("error: --threads must be a positive")
+    assert bad.exit_code == 2 and bad.stderr.startswith("error: --threads must be positive")
+    assert_one_line_error(lab("bench", "--task", "cartpole", "--threads", "2,x", logs=tmp_path))
 
 
 @pytest.mark.parametrize("counts", ["0", "4,x", ""])

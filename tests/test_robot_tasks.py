@@ -310,3 +310,30 @@ def test_play_turns_observation_noise_off_unless_asked_and_sets_nothing_else(tmp
     refused = lab("play", "--last", "--task", "ant", "--set", "env.num_envs=3", logs=logs)
     assert_one_line_error(refused, "--set env.num_envs cannot change a run",
                           "env.observation_noise")
+
+
+@pytest.mark.parametrize("task", ["humanoid", "go1-flat"])
+def test_the_thread_count_does_not_change_a_robot_tasks_trajectory(task):
+    """Contacts, sensors, per-env models (go1-flat's friction and mass) and resets: the same
+    outputs bit for bit on one thread, on two (the calling thread and a worker) and on MuJoCo's
+    pool (3)."""
+    gen = torch.Generator().manual_seed(0)
+    actions = None
+    runs = []
+    for threads in (1, 2, 3):
+        env = make_env(task, num_envs=6, seed=1, threads=threads, episode_length_s=0.3)
+        assert env.sim.nthread == threads
+        if actions is None:
+            shape = (25, *env.action_space.shape)
+            actions = torch.rand(shape, generator=gen) * 2 - 1
+        outputs = [env.reset(seed=1)[0]]
+        for action in actions:
+            obs, reward, terminated, truncated, info = env.step(action)
+            outputs += [obs, reward, terminated, truncated, info["final_obs"]]
+        env.close()
+        runs.append(outputs)
+    assert runs[0][-1].ne(runs[0][1]).any()  # it moved, so the comparison means something
+    assert any(out.any() for out in runs[0][4::5])  # episodes ended and were reset
+    for other in runs[1:]:
+        for mine, theirs in zip(runs[0], other, strict=True):
+            torch.testing.assert_close(theirs, mine, rtol=0, atol=0, equal_nan=True)

@@ -22,25 +22,24 @@ def bench(
         "--framework", "-f", help="Also time a short training run with this framework.",
         autocompletion=complete_framework)] = None,
     seconds: Annotated[float, typer.Option(help="Seconds per measurement.")] = 3.0,
-    threads: Annotated[int | None, typer.Option(
-        help="cpu backend: threads that step the physics [the cores this process may use].")
-    ] = None,
+    threads: Annotated[str | None, typer.Option(
+        help="cpu backend: comma-separated counts of threads that step the physics, each "
+             "measured beside MuJoCo's rollout on as many [the cores this process may use]."
+    )] = None,
     as_json: JsonOpt = False,
 ) -> None:
     """Measure env-steps/s of a task (random actions, resets included) and, with --framework,
     training steps/s.
 
     Example: lab bench --task cartpole --num-envs 16,256,1024 --framework rsl_rl
+             lab bench --task humanoid --num-envs 1024,4096 --threads 2,4,8,16
     """
-    try:
-        counts = [int(n) for n in num_envs.split(",")]
-    except ValueError:
-        raise LabError(f"--num-envs '{num_envs}' is not a list of integers",
-                       "e.g. --num-envs 16,256,1024") from None
+    counts = _integers("--num-envs", num_envs, "16,256,1024")
+    thread_counts = _integers("--threads", threads, "2,4,8,16") if threads is not None else []
     from labcli.runs import bench as benches
 
     rows = benches.bench(task, counts, backend=backend, device=device, framework=framework,
-                         seconds=seconds, threads=threads)
+                         seconds=seconds, threads=thread_counts)
     if as_json:
         out().print_json(json.dumps([row.as_dict() for row in rows]))
         return
@@ -61,3 +60,11 @@ def bench(
             cells += [row.framework, f"{row.train_steps_per_s:,.0f}"]
         rows_table.add_row(*cells)
     out().print(rows_table)
+
+
+def _integers(option: str, text: str, example: str) -> list[int]:
+    try:
+        return [int(n) for n in text.split(",")]
+    except ValueError:
+        raise LabError(f"{option} '{text}' is not a list of integers",
+                       f"e.g. {option} {example}") from None

@@ -141,7 +141,10 @@ def time_to_success(run_dir: Path, threshold: float) -> tuple[float, int] | None
 
 def bench(task: str, num_envs: Sequence[int], *, backend: str | None = None,
           device: str | None = None, framework: str | None = None,
-          seconds: float = 3.0, threads: int | None = None) -> list[BenchRow]:
+          seconds: float = 3.0, threads: Sequence[int] = ()) -> list[BenchRow]:
+    """A row per thread count (cpu backend; none given: the cores this process may use) and env
+    count, in that order: each env measured beside the rollout of what it steps on as many
+    threads, so that the ratio says how much of the cores' physics lab keeps."""
     spec = registry.get_task(task)
     if framework is not None:
         registry.get_framework(framework)  # an unknown name fails before any measuring
@@ -149,20 +152,21 @@ def bench(task: str, num_envs: Sequence[int], *, backend: str | None = None,
     if not num_envs or any(n <= 0 for n in num_envs):
         raise LabError(f"--num-envs must be positive integers, got {list(num_envs)}",
                        "e.g. --num-envs 16,256,1024")
-    if threads is not None and threads <= 0:
-        raise LabError(f"--threads must be a positive integer, got {threads}",
-                       "leave it out to use the cores this process may use")
+    if any(t <= 0 for t in threads):
+        raise LabError(f"--threads must be positive integers, got {list(threads)}",
+                       "e.g. --threads 2,4,8,16, or leave it out to use the cores this process "
+                       "may use")
     if not 0 < seconds <= 3600:
         raise LabError(f"--seconds must be more than 0 and at most 3600, got {seconds:g}")
-    overrides = [f"env.threads={threads}"] if threads is not None else []
+    settings = [[f"env.threads={t}"] for t in threads] or [[]]
     # Validated as `lab train` validates them: a count past the config's bounds is one line.
-    configs = [config.build(spec.config_class, "env", [config.parse_set(
-        [f"env.num_envs={n}", *overrides])["env"]]) for n in num_envs]
+    runs = [(overrides, config.build(spec.config_class, "env", [config.parse_set(
+        [f"env.num_envs={n}", *overrides])["env"]])) for overrides in settings for n in num_envs]
     rows = []
-    for n, cfg in zip(num_envs, configs, strict=True):
+    for overrides, cfg in runs:
         env = LabVecEnv(spec, cfg, backend=backend, device=device)
         try:
-            row = BenchRow(task, env.backend, n, env_rate(env, seconds),
+            row = BenchRow(task, env.backend, cfg.num_envs, env_rate(env, seconds),
                            threads=env.sim.nthread)
             if env.backend == "cpu":
                 row.rollout_steps_per_s = rollout_rate(env, seconds)
@@ -171,6 +175,7 @@ def bench(task: str, num_envs: Sequence[int], *, backend: str | None = None,
             env.close()
         if framework is not None:
             row.framework = framework
-            row.train_steps_per_s = train_rate(task, framework, n, backend, device, overrides)
+            row.train_steps_per_s = train_rate(task, framework, cfg.num_envs, backend, device,
+                                               overrides)
         rows.append(row)
     return rows
