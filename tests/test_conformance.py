@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import io
 import re
 
 import numpy as np
@@ -10,11 +11,14 @@ import pytest
 import torch
 from lab_rl_games.framework import RlGamesFramework
 from lab_rl_games.plugin import SPEC as RL_GAMES
+from rich.console import Console
 
 from labcli import testing
+from labcli.envs.env import LabVecEnv
 from labcli.errors import LabError
 from labcli.plugins.hookspecs import hookimpl
 from labcli.plugins.policy import Policy
+from labcli.runs import training
 
 FRAMEWORKS = ["sb3", "rsl_rl", "skrl", "rl_games"]
 
@@ -87,6 +91,30 @@ def test_export_onnx(name, tmp_path):
 @pytest.mark.parametrize("name", FRAMEWORKS)
 def test_training_improves_the_return(name, tmp_path):
     testing.check_training_improves(name, tmp_path, **IMPROVE[name])
+
+
+@pytest.mark.parametrize("name", FRAMEWORKS)
+def test_the_update_runs_on_half_the_runs_threads_and_the_rollout_on_one(
+        name, tmp_path, monkeypatch):
+    threads: dict[str, set[int]] = {"env step": set(), "backward": set()}
+    step, backward = LabVecEnv.step, torch.autograd.backward
+
+    def counted_step(self, actions):
+        threads["env step"].add(torch.get_num_threads())
+        return step(self, actions)
+
+    def counted_backward(*args, **kwargs):
+        threads["backward"].add(torch.get_num_threads())
+        return backward(*args, **kwargs)
+
+    monkeypatch.setattr(LabVecEnv, "step", counted_step)
+    monkeypatch.setattr(torch.autograd, "backward", counted_backward)
+    before = torch.get_num_threads()
+    # 6 physics threads: the update gets 3 (the default here, one per core, is 2).
+    training.train("cartpole", name, num_envs=8, max_iterations=2, logs_dir=tmp_path,
+                   overrides=[*SMALL[name], "env.threads=6"], console=Console(file=io.StringIO()))
+    assert threads == {"env step": {1}, "backward": {3}}
+    assert torch.get_num_threads() == before
 
 
 def test_check_framework_runs_every_check(tmp_path):

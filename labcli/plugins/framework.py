@@ -164,6 +164,11 @@ class TrainContext(abc.ABC):
     world_size: int
     # Figures whose names are the TensorBoard tags of labcli.envs.metrics.
     last_stats: Mapping[str, float]
+    # Torch threads for the learner's update on the CPU (`torch_threads(device, update_threads)`
+    # of labcli.plugins.policy around it; the rest of training runs on one): half the cores this
+    # run's physics may use. The physics threads sleep during an update, and its mini-batches
+    # are large enough to pay for threads.
+    update_threads: int
 
     @property
     def start_iteration(self) -> int:

@@ -52,17 +52,23 @@ class Policy(nn.Module):
         return self.actor(self.normalizer(obs)).clamp(-self.clip, self.clip)
 
 
-@contextlib.contextmanager
-def one_torch_thread(device: str) -> Iterator[None]:
-    """On CPU, run the learner on one torch thread. Policy-sized MLPs gain nothing from more:
-    they only add synchronization, and their spinning threads fight MuJoCo's for the cores
+def one_torch_thread(device: str) -> contextlib.AbstractContextManager[None]:
+    """On CPU, step the env and run the policy on one torch thread. Their ops are small: more
+    threads only add synchronization, and their spinning fights MuJoCo's threads for the cores
     (measured on 2 cores: 6 RSL-RL cartpole iterations took 28 s with 2 threads, 2 s with 1;
-    an skrl backward pass 44 ms against 1 ms)."""
+    an skrl backward pass 44 ms against 1 ms). A learner's update takes `TrainContext`'s
+    `update_threads` (see `torch_threads`)."""
+    return torch_threads(device, 1)
+
+
+@contextlib.contextmanager
+def torch_threads(device: str, threads: int) -> Iterator[None]:
+    """On CPU, torch's intra-op threads inside the block are `threads`; on a GPU, unchanged."""
     if torch.device(device).type != "cpu":
         yield
         return
     previous = torch.get_num_threads()
-    torch.set_num_threads(1)
+    torch.set_num_threads(threads)
     try:
         yield
     finally:

@@ -81,6 +81,7 @@ class RunContext(TrainContext):
     # This process's place in a data-parallel run: only rank 0 writes (TensorBoard, progress,
     # checkpoints, the hook above); every rank logs the figures of all ranks' envs.
     ranks: Ranks = SINGLE
+    update_threads: int = 1
     iteration: int = 0
     steps: int = 0
     last_stats: dict[str, float] = field(default_factory=dict)

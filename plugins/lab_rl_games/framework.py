@@ -35,6 +35,7 @@ from labcli.plugins.policy import (
     check_mlp,
     one_torch_thread,
     read_torch_file,
+    torch_threads,
 )
 
 ALGO, MODEL = "a2c_continuous", "continuous_a2c_logstd"
@@ -120,6 +121,15 @@ class LabAgent(A2CAgent):
         self.writer = _Scalars(ctx.writer)
         self.ctx = ctx
         self.finished = False
+
+    def train_epoch(self) -> Any:
+        # A rollout, then the update on the run's update threads (the rollout on one).
+        with torch_threads(self.ctx.device, self.ctx.update_threads):
+            return super().train_epoch()
+
+    def play_steps(self) -> dict[str, Any]:
+        with one_torch_thread(self.ctx.device):
+            return super().play_steps()
 
     def update_epoch(self) -> int:
         # The loop's first call of an iteration: lab said the last one was the last.

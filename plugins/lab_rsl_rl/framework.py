@@ -110,6 +110,7 @@ class LabRunner(OnPolicyRunner):
             super().__init__(env, runner_config(cfg), log_dir=str(ctx.run_dir),
                              device=ctx.device)
         self.ctx = ctx
+        self.alg.update_threads = ctx.update_threads
         self.info = {"observation_size": env.get_observations()[OBS_GROUP].shape[1],
                      "action_size": env.num_actions, "actor": self.cfg["actor"]}
         self.logger = _LabLogger(ctx, self.write_checkpoint, cfg.num_steps_per_env * env.num_envs)

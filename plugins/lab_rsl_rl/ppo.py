@@ -17,12 +17,15 @@ from rsl_rl.algorithms import PPO
 from tensordict import TensorDict
 from torch import nn
 
+from labcli.plugins.policy import torch_threads
 from labcli.plugins.update_graph import UpdateGraph, adapt_adam, eager_adam_state
 
 
 class LabPPO(PPO):
-    """PPO whose `update` replays one CUDA graph where it can (`cuda_graph`), and whose Adam is
-    fused everywhere."""
+    """PPO whose `update` replays one CUDA graph where it can (`cuda_graph`), whose Adam is
+    fused everywhere, and which updates on `update_threads` torch threads on the CPU."""
+
+    update_threads = 1  # the run's TrainContext.update_threads, set by lab's runner
 
     def __init__(self, *args: Any, cuda_graph: bool = True, **kwargs: Any):
         super().__init__(*args, **kwargs)
@@ -64,6 +67,10 @@ class LabPPO(PPO):
         return done
 
     def update(self) -> dict[str, float]:
+        with torch_threads(self.device, self.update_threads):
+            return self._update()
+
+    def _update(self) -> dict[str, float]:
         if not self.graphed:
             return super().update()
         self._load_batch()

@@ -102,6 +102,7 @@ class Sb3Framework(Framework):
             policy_kwargs=policy_kwargs(cfg), seed=ctx.seed, device=ctx.device, verbose=0,
             # On the CPU SB3's own buffer stays: lab's CPU figures were measured with it.
             rollout_buffer_class=DeviceRolloutBuffer if on_gpu else None)
+        model.update_threads = ctx.update_threads
         if ctx.resume is not None:
             saved = read_checkpoint(ctx.resume.path, ctx.device)
             load_weights(model.policy, saved, ctx.resume.path, ctx.env)

@@ -18,6 +18,8 @@ from stable_baselines3 import PPO
 from stable_baselines3.common.buffers import RolloutBuffer
 from stable_baselines3.common.type_aliases import RolloutBufferSamples
 
+from labcli.plugins.policy import torch_threads
+
 # SB3's RolloutBuffer fields, [n_steps, n_envs, ...] each
 FIELDS = ("observations", "actions", "rewards", "episode_starts", "values", "log_probs",
           "advantages", "returns")
@@ -96,7 +98,14 @@ class DeviceRolloutBuffer(RolloutBuffer):
 
 class LabPPO(PPO):
     """SB3's PPO, reading only the ended envs' infos for its episode buffers (SB3 reads every
-    env's every step; lab's adapter puts figures in the ended envs' infos only)."""
+    env's every step; lab's adapter puts figures in the ended envs' infos only), and updating
+    on `update_threads` torch threads on the CPU."""
+
+    update_threads = 1  # the run's TrainContext.update_threads, set by lab's framework
+
+    def train(self) -> None:
+        with torch_threads(str(self.device), self.update_threads):
+            super().train()
 
     def _update_info_buffer(self, infos: list[dict[str, Any]],
                             dones: np.ndarray | None = None) -> None:
@@ -112,4 +121,4 @@ class LabPPO(PPO):
         # env's, which a resumed run restores itself (SB3 resets its env when they are missing):
         # SB3 pickles and prints them into the zip's JSON, 40 of a save's 50 ms at 4,096 envs.
         return [*super()._excluded_save_params(), "rollout_buffer_class", "rollout_buffer_kwargs",
-                "_last_obs", "_last_episode_starts", "_last_original_obs"]
+                "update_threads", "_last_obs", "_last_episode_starts", "_last_original_obs"]

@@ -131,6 +131,7 @@ class SkrlFramework(Framework):
         cfg: SkrlPPOConfig = ctx.cfg  # type: ignore[assignment]
         join_ranks(ctx.rank, torch.device(ctx.device).index or 0, ctx.world_size)
         agent = make_agent(cfg, env, ctx.device, ctx.run_dir)
+        agent.update_threads = ctx.update_threads
         steps = 0
         if ctx.resume is not None:
             saved = read_checkpoint(ctx.resume.path)

@@ -26,6 +26,7 @@ from skrl.resources.preprocessors.torch import RunningStandardScaler
 from skrl.resources.schedulers.torch import KLAdaptiveLR
 from torch import nn
 
+from labcli.plugins.policy import torch_threads
 from labcli.plugins.update_graph import UpdateGraph, adapt_adam, eager_adam_state
 
 
@@ -62,8 +63,10 @@ class RankedScaler(RunningStandardScaler):
 
 
 class LabSkrlPPO(PPO):
-    """PPO whose `update` replays one CUDA graph where it can (`cuda_graph`), and whose Adam is
-    fused everywhere."""
+    """PPO whose `update` replays one CUDA graph where it can (`cuda_graph`), whose Adam is
+    fused everywhere, and which updates on `update_threads` torch threads on the CPU."""
+
+    update_threads = 1  # the run's TrainContext.update_threads, set by lab's framework
 
     def __init__(self, *args: Any, cuda_graph: bool = True, **kwargs: Any):
         super().__init__(*args, **kwargs)
@@ -97,6 +100,10 @@ class LabSkrlPPO(PPO):
                 group["lr"] = lr
 
     def update(self, *, timestep: int, timesteps: int) -> None:
+        with torch_threads(self.device, self.update_threads):
+            self._update(timestep=timestep, timesteps=timesteps)
+
+    def _update(self, *, timestep: int, timesteps: int) -> None:
         if not self.graphed:
             return super().update(timestep=timestep, timesteps=timesteps)
         self._returns_and_advantages()
