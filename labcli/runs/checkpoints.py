@@ -55,14 +55,16 @@ def write(directory: Path, fw: FrameworkSpec, iteration: int, save: Callable[[Pa
             if extra is not None:
                 extra(staging)
             if not model.is_file():
-                if not staging.is_dir():  # removed under lab: the run dir is being deleted
-                    raise files.deleted(below or directory)
                 raise RuntimeError(f"framework '{fw.name}' did not write its checkpoint at "
                                    f"{model}")
             if check is not None:
                 check(model)
             _publish(staging, directory, iteration, fw.name)
         except (OSError, RuntimeError) as exc:
+            # The staging dir is lab's own: gone, it was removed under lab, whatever the
+            # library said of its missing file (`rm -rf` of the run dir empties it first).
+            if not staging.is_dir():
+                raise files.deleted(below or directory) from exc
             error = files.failed_write(fw.checkpoint_path(directory, iteration), exc,
                                        root=below or directory)
             if error is None:
