@@ -63,6 +63,26 @@ def deleted(path: Path) -> LabError:
                     "nothing more was written")
 
 
+def vanished(path: Path, root: Path) -> Path:
+    """The outermost directory from `root` down to `path`'s that no longer exists (`path`'s own
+    directory when all still do): what a deletion under lab took away. `rm -rf` of a run dir
+    empties it from the inside, so its subdirectories go first."""
+    directory = root
+    for part in path.parent.relative_to(root).parts:
+        if not directory.is_dir():
+            return directory
+        directory = directory / part
+    return directory
+
+
+def _failure(path: Path, exc: OSError, root: Path | None) -> LabError:
+    """A write inside a run dir (`root`) that found a directory missing was undone under lab:
+    lab made every directory it writes into just before."""
+    if root is not None and (isinstance(exc, FileNotFoundError) or not root.is_dir()):
+        return deleted(vanished(path, root))
+    return unwritable(path, exc)
+
+
 def real_dir(path: Path, create: bool = True, below: Path | None = None) -> Path:
     """`path` as a directory that is no link (created, with its missing parents, when `create`):
     a link in a shared run dir would send lab's writes wherever it points. With `below`, every
@@ -105,11 +125,12 @@ FULL_BELOW = 1 << 20
 def failed_write(path: Path, exc: Exception, root: Path | None = None) -> LabError | None:
     """The one line for a write that failed, or None when it is no file-system failure: an
     OSError, or an error from a library that hides ENOSPC in its own (torch.save's "unexpected
-    pos") while the disk is full. With `root` (a run dir): its disappearance is said as such."""
+    pos") while the disk is full. With `root` (a run dir): its disappearance, or that of a
+    directory in it, is said as such."""
     if root is not None and not root.is_dir():
         return deleted(root)
     if isinstance(exc, OSError):
-        return unwritable(path, exc)
+        return _failure(path, exc, root)
     try:
         full = shutil.disk_usage(path.parent).free < FULL_BELOW
     except OSError:
@@ -139,7 +160,7 @@ def staged(target: Path, below: Path | None = None) -> Iterator[Path]:
         fd, name = tempfile.mkstemp(dir=directory, prefix=f".tmp_{target.stem}.",
                                     suffix=target.suffix)
     except OSError as exc:
-        raise unwritable(target, exc) from exc
+        raise _failure(target, exc, below) from exc
     os.close(fd)
     tmp = Path(name)
     try:
@@ -149,7 +170,7 @@ def staged(target: Path, below: Path | None = None) -> Iterator[Path]:
         os.replace(tmp, target)
         fsync_dir(directory)
     except OSError as exc:
-        raise unwritable(target, exc) from exc
+        raise _failure(target, exc, below) from exc
     finally:
         tmp.unlink(missing_ok=True)
 

@@ -24,7 +24,7 @@ from oneline import assert_one_line_error
 from runfiles import kill_when_writing, remanifest, snapshot_of
 from typer.testing import CliRunner
 
-from labcli import testing
+from labcli import files, testing
 from labcli.commands.app import app
 from labcli.errors import LabError
 from labcli.plugins import registry
@@ -517,6 +517,26 @@ def test_a_checkpoint_deleted_while_it_is_written_is_said_as_a_deleted_run(tmp_p
 
     with pytest.raises(LabError, match="no longer exists: it was deleted or moved"):
         checkpoints.write(run_dir, fw, 1, save)
+    assert list(run_dir.iterdir()) == []
+
+
+def test_a_file_written_into_a_directory_deleted_under_lab_says_it_was_deleted(
+        tmp_path, monkeypatch):
+    # The third race of the first test above: the checkpoint's files were published into
+    # .candidate, which rm then removed before lab wrote the manifest beside them.
+    run_dir = tmp_path / "run"
+    candidate = run_dir / ".candidate"
+    candidate.mkdir(parents=True)
+    real_dir = files.real_dir
+
+    def checked_then_deleted(path, create=True, below=None):
+        checked = real_dir(path, create, below)
+        shutil.rmtree(candidate, ignore_errors=True)
+        return checked
+
+    monkeypatch.setattr(files, "real_dir", checked_then_deleted)
+    with pytest.raises(LabError, match=r"\.candidate no longer exists: it was deleted"):
+        files.write_atomic(candidate / "checkpoint_2.json", "{}", below=run_dir)
     assert list(run_dir.iterdir()) == []
 
 
