@@ -400,6 +400,8 @@ def main() -> None:
     p.add_argument("--tasks", default=TASK, help="d)'s tasks, e.g. cartpole,ant,humanoid")
     p.add_argument("--train", metavar="FRAMEWORK", help="d): also cartpole's training steps/s")
     a = p.parse_args()
+    if a.train and TASK not in a.tasks.split(","):
+        p.error(f"--train times {TASK}'s training: list it in --tasks")
     if a.profile:
         profile_table(a.profile, profile(a.profile))
         return

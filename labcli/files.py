@@ -127,10 +127,10 @@ def failed_write(path: Path, exc: Exception, root: Path | None = None) -> LabErr
     OSError, or an error from a library that hides ENOSPC in its own (torch.save's "unexpected
     pos") while the disk is full. With `root` (a run dir): its disappearance, or that of a
     directory in it, is said as such."""
-    if root is not None and not root.is_dir():
-        return deleted(root)
     if isinstance(exc, OSError):
         return _failure(path, exc, root)
+    if root is not None and not root.is_dir():
+        return deleted(root)
     try:
         full = shutil.disk_usage(path.parent).free < FULL_BELOW
     except OSError:
