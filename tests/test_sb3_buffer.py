@@ -1,14 +1,16 @@
 """lab's faster parts of SB3 against SB3's own: the device rollout buffer (lab_sb3.ppo) gives SB3's
-returns, advantages and mini-batches, and a whole training run with it ends with SB3's
-parameters and episode figures; the batched VecNormalize gives VecNormalize's observations,
-rewards, last observations and statistics; a zip without the last observations loads and trains
-on in plain SB3. Run on the CPU here (the buffer is device-agnostic torch); on a GPU the buffer is
-what `lab train --framework sb3` uses."""
+returns, advantages and mini-batches, and a whole training run with it and the batched
+time-out bootstrap ends with SB3's parameters and episode figures; the batched VecNormalize
+gives VecNormalize's observations, rewards, last observations and statistics; a zip without the
+last observations loads and trains on in plain SB3. Run on the CPU here (the buffer is
+device-agnostic torch); on a GPU the buffer is what `lab train --framework sb3` uses."""
 
 from __future__ import annotations
 
 import json
 import zipfile
+
+import importlib.util
 
 import gymnasium as gym
 import numpy as np
@@ -21,10 +23,13 @@ from stable_baselines3.common.buffers import RolloutBuffer
 from stable_baselines3.common.vec_env import VecNormalize
 
 from labcli import testing
+from labcli.envs.env import LabVecEnv
+from labcli.plugins import registry
 
 STEPS, ENVS, OBS, ACTIONS = 6, 5, 3, 2
 DEVICES = ["cpu", pytest.param("cuda", marks=[pytest.mark.gpu, pytest.mark.skipif(
     not torch.cuda.is_available(), reason="needs a CUDA GPU")])]
+HAVE_WARP = all(importlib.util.find_spec(m) for m in ("warp", "mujoco_warp"))
 OBS_SPACE = gym.spaces.Box(-np.inf, np.inf, (OBS,), dtype=np.float32)
 ACTION_SPACE = gym.spaces.Box(-1.0, 1.0, (ACTIONS,), dtype=np.float32)
 
@@ -74,6 +79,7 @@ def run(cls: type[PPO], buffer: type[RolloutBuffer] | None) -> PPO:
 
 
 def test_lab_ppo_with_the_device_buffer_trains_as_sb3s_ppo():
+    # 5-step episodes: time-outs in most steps, each bootstrapped by TimeoutBootstrap.
     ours, sb3 = run(LabPPO, DeviceRolloutBuffer), run(PPO, None)
     for (name, a), b in zip(ours.policy.state_dict().items(), sb3.policy.state_dict().values(),
                             strict=True):
@@ -112,14 +118,17 @@ def test_lab_ppo_reads_the_ended_envs_infos(dones):
 
 
 def test_batched_vec_normalize_gives_sb3s_vec_normalize():
-    ours, sb3 = (cls(Sb3VecEnv(testing.make_env(episode_length_s=0.1)), norm_reward=True)
-                 for cls in (BatchedVecNormalize, VecNormalize))
+    # A small clip_obs: some observations are clipped.
+    ours, sb3 = (cls(Sb3VecEnv(testing.make_env(episode_length_s=0.1)), norm_reward=True,
+                     clip_obs=1.0) for cls in (BatchedVecNormalize, VecNormalize))
     np.testing.assert_array_equal(ours.reset(), sb3.reset())
     rng = np.random.default_rng(0)
-    ended = 0
+    ended, clipped, returned = 0, 0, []
     for _ in range(12):
         actions = rng.uniform(-1, 1, (ours.num_envs, 1)).astype(np.float32)
         a, b = ours.step(actions), sb3.step(actions)
+        returned.append((a[0], a[0].copy()))  # what a step returned stays as it was
+        clipped += int((np.abs(a[0]) == 1.0).sum())
         for x, y in zip(a[:3], b[:3], strict=True):
             np.testing.assert_array_equal(x, y)
         for x, y in zip(a[3], b[3], strict=True):
@@ -130,6 +139,48 @@ def test_batched_vec_normalize_gives_sb3s_vec_normalize():
                 np.testing.assert_array_equal(x["terminal_observation"],
                                               y["terminal_observation"])
     assert ended >= ours.num_envs  # every env ended at least once
+    assert clipped > 0
+    for obs, copy in returned:
+        np.testing.assert_array_equal(obs, copy)
     np.testing.assert_array_equal(ours.obs_rms.var, sb3.obs_rms.var)
     np.testing.assert_array_equal(ours.ret_rms.var, sb3.ret_rms.var)
     np.testing.assert_array_equal(ours.get_original_obs(), sb3.get_original_obs())
+
+
+@pytest.mark.parametrize("device", ["cpu", pytest.param("cuda", marks=[
+    pytest.mark.gpu, pytest.mark.skipif(not (torch.cuda.is_available() and HAVE_WARP),
+                                        reason="needs a CUDA GPU and MuJoCo Warp")])])
+def test_batched_vec_normalize_on_the_device_gives_sb3s_vec_normalize(device, monkeypatch):
+    """The GPU's path (on the CPU by forcing it): SB3's numbers but for the batch moments, which
+    it sums in float64."""
+    if device == "cpu":
+        monkeypatch.setattr(BatchedVecNormalize, "on_device", property(lambda self: True))
+    spec = registry.get_task(testing.TASK)
+
+    def env() -> Sb3VecEnv:
+        return Sb3VecEnv(LabVecEnv(spec, spec.config_class(num_envs=16, episode_length_s=0.1),
+                                   device=device))
+
+    ours, sb3 = BatchedVecNormalize(env(), clip_obs=1.0), VecNormalize(env(), clip_obs=1.0)
+    assert ours.on_device
+    close = {"rtol": 1e-5, "atol": 1e-5}
+    np.testing.assert_allclose(ours.reset(), sb3.reset(), **close)
+    rng = np.random.default_rng(0)
+    clipped = 0
+    for _ in range(12):
+        actions = rng.uniform(-1, 1, (ours.num_envs, 1)).astype(np.float32)
+        (obs, rewards, dones, infos), theirs = ours.step(actions), sb3.step(actions)
+        assert obs.dtype == np.float32
+        np.testing.assert_allclose(obs, theirs[0], **close)
+        np.testing.assert_array_equal(rewards, theirs[1])
+        np.testing.assert_array_equal(dones, theirs[2])
+        np.testing.assert_array_equal(ours.get_original_obs(), sb3.get_original_obs())
+        for x, y in zip(infos, theirs[3], strict=True):
+            if "terminal_observation" in y:
+                np.testing.assert_allclose(x["terminal_observation"], y["terminal_observation"],
+                                           **close)
+        clipped += int((np.abs(obs) == 1.0).sum())
+    assert clipped > 0
+    np.testing.assert_allclose(ours.obs_rms.mean, sb3.obs_rms.mean, rtol=1e-6, atol=1e-7)
+    np.testing.assert_allclose(ours.obs_rms.var, sb3.obs_rms.var, rtol=1e-6, atol=1e-7)
+    assert ours.obs_rms.count == sb3.obs_rms.count

@@ -12,6 +12,7 @@ from typing import Any
 
 import numpy as np
 import torch
+from stable_baselines3.common.running_mean_std import RunningMeanStd
 from stable_baselines3.common.vec_env import VecNormalize
 from stable_baselines3.common.vec_env.base_vec_env import VecEnv
 
@@ -32,6 +33,11 @@ class Sb3VecEnv(VecEnv):
         self._actions = actions
 
     def step_wait(self):
+        obs, reward, done, infos = self.step_tensor()
+        return obs.cpu().numpy(), reward, done, infos
+
+    def step_tensor(self) -> tuple[torch.Tensor, np.ndarray, np.ndarray, list[dict[str, Any]]]:
+        """`step_wait` with the observations left a tensor on the env's device."""
         actions = torch.as_tensor(self._actions, dtype=torch.float32)
         obs, reward, terminated, truncated, info = self.env.step(actions)
         done = (terminated | truncated).cpu().numpy()
@@ -49,7 +55,7 @@ class Sb3VecEnv(VecEnv):
                     "episode": {"r": float(returns[i]), "l": int(lengths[i])},
                     "is_success": bool(success[i]),
                 }
-        return obs.cpu().numpy(), reward.cpu().numpy(), done, infos
+        return obs, reward.cpu().numpy(), done, infos
 
     def close(self) -> None:
         self.env.close()
@@ -76,14 +82,50 @@ class BatchedVecNormalize(VecNormalize):
     """SB3's VecNormalize, with the ended envs' last observations normalized as one batch: SB3
     normalizes each on its own (a deep copy and a clip, ~30 µs each under cProfile on a 2-core
     VM: 4 ms a step when 126 of 4,096 humanoids fall in one). Otherwise SB3's `step_wait`, for
-    lab's array observations."""
+    lab's array observations. Observations are normalized with SB3's formula into one reused
+    float64 array, without SB3's deep copy of them: at 4,096 humanoids' 87 observations on a
+    2-core VM, 0.7 ms a step instead of 4.7 ms, the same numbers.
+
+    On a GPU a step's observations are normalized where the env made them (`on_device`): their
+    mean and variance, SB3's formula and clip in float64 there, the statistics' update
+    (`update_from_moments`) on the host. SB3's NumPy took 3 ms a step of 4,096 humanoids on an
+    H100's host, a fifth of the rollout. The one difference from SB3: a batch's moments are
+    summed in float64, where NumPy sums float32 observations in float32."""
+
+    _scratch: np.ndarray | None = None
+
+    @property
+    def on_device(self) -> bool:
+        env = getattr(self.venv, "env", None)
+        return (isinstance(self.venv, Sb3VecEnv) and self.norm_obs
+                and getattr(env, "device", torch.device("cpu")).type != "cpu")
+
+    def normalize_obs(self, obs):
+        if not (self.norm_obs and isinstance(obs, np.ndarray)):
+            return super().normalize_obs(obs)
+        return self._normalize_obs(obs, self.obs_rms).astype(np.float32)
+
+    def _normalize_obs(self, obs: np.ndarray, obs_rms: RunningMeanStd) -> np.ndarray:
+        # Only `normalize_obs` calls it, and copies the result out of the scratch array.
+        if self._scratch is None or self._scratch.shape != obs.shape:
+            self._scratch = np.empty(obs.shape)
+        out = np.subtract(obs, obs_rms.mean, out=self._scratch)
+        np.divide(out, np.sqrt(obs_rms.var + self.epsilon), out=out)
+        return np.clip(out, -self.clip_obs, self.clip_obs, out=out)
 
     def step_wait(self):
-        obs, rewards, dones, infos = self.venv.step_wait()
+        if self.on_device:
+            tensor, rewards, dones, infos = self.venv.step_tensor()
+            obs = tensor.cpu().numpy()
+        else:
+            obs, rewards, dones, infos = self.venv.step_wait()
         self.old_obs, self.old_reward = obs, rewards
-        if self.training and self.norm_obs:
-            self.obs_rms.update(obs)
-        obs = self.normalize_obs(obs)
+        if self.on_device:
+            obs = self._normalize_on_device(tensor)
+        else:
+            if self.training and self.norm_obs:
+                self.obs_rms.update(obs)
+            obs = self.normalize_obs(obs)
         if self.training:
             self._update_reward(rewards)
         rewards = self.normalize_reward(rewards)
@@ -94,3 +136,16 @@ class BatchedVecNormalize(VecNormalize):
                 infos[i]["terminal_observation"] = row
         self.returns[dones] = 0
         return obs, rewards, dones, infos
+
+    def _normalize_on_device(self, obs: torch.Tensor) -> np.ndarray:
+        """`obs_rms.update(obs)` (when training), then `normalize_obs(obs)`, on obs' device."""
+        x = obs.to(torch.float64, copy=True)  # normalized in place: not the env's tensor
+        if self.training:
+            var, mean = torch.var_mean(x, dim=0, correction=0)
+            mean, var = torch.stack((mean, var)).cpu().numpy()
+            self.obs_rms.update_from_moments(mean, var, len(x))
+        rms = self.obs_rms
+        mean, std = torch.as_tensor(np.stack((rms.mean, np.sqrt(rms.var + self.epsilon))),
+                                    device=x.device)
+        x.sub_(mean).div_(std).clamp_(-self.clip_obs, self.clip_obs)
+        return x.float().cpu().numpy()
