@@ -7,10 +7,9 @@ device-agnostic torch); on a GPU the buffer is what `lab train --framework sb3` 
 
 from __future__ import annotations
 
+import importlib.util
 import json
 import zipfile
-
-import importlib.util
 
 import gymnasium as gym
 import numpy as np
@@ -32,6 +31,13 @@ DEVICES = ["cpu", pytest.param("cuda", marks=[pytest.mark.gpu, pytest.mark.skipi
 HAVE_WARP = all(importlib.util.find_spec(m) for m in ("warp", "mujoco_warp"))
 OBS_SPACE = gym.spaces.Box(-np.inf, np.inf, (OBS,), dtype=np.float32)
 ACTION_SPACE = gym.spaces.Box(-1.0, 1.0, (ACTIONS,), dtype=np.float32)
+
+
+@pytest.fixture(autouse=True)
+def sb3_logs(tmp_path, monkeypatch):
+    """SB3 makes a log dir (/tmp/SB3-<time> by default) for each model that learns without a
+    logger set: the tests' go under their own tmp_path."""
+    monkeypatch.setenv("SB3_LOGDIR", str(tmp_path / "sb3"))
 
 
 def filled(cls: type[RolloutBuffer], device: str) -> RolloutBuffer:
