@@ -88,9 +88,10 @@ class BatchedVecNormalize(VecNormalize):
 
     On a GPU a step's observations are normalized where the env made them (`on_device`): their
     mean and variance, SB3's formula and clip in float64 there, the statistics' update
-    (`update_from_moments`) on the host. SB3's NumPy took 3 ms a step of 4,096 humanoids on an
-    H100's host, a fifth of the rollout. The one difference from SB3: a batch's moments are
-    summed in float64, where NumPy sums float32 observations in float32."""
+    (`update_from_moments`) on the host. SB3's NumPy took ~3 ms a step of 4,096 humanoids on an
+    H100's host (under cProfile); on the device an iteration of 32 steps took ~0.05 s less. The
+    one difference from SB3: a batch's moments are summed in float64, where NumPy sums float32
+    observations in float32."""
 
     _scratch: np.ndarray | None = None
 
@@ -116,16 +117,15 @@ class BatchedVecNormalize(VecNormalize):
     def step_wait(self):
         if self.on_device:
             tensor, rewards, dones, infos = self.venv.step_tensor()
-            obs = tensor.cpu().numpy()
-        else:
-            obs, rewards, dones, infos = self.venv.step_wait()
-        self.old_obs, self.old_reward = obs, rewards
-        if self.on_device:
+            self.old_obs = tensor.cpu().numpy()
             obs = self._normalize_on_device(tensor)
         else:
+            obs, rewards, dones, infos = self.venv.step_wait()
+            self.old_obs = obs
             if self.training and self.norm_obs:
                 self.obs_rms.update(obs)
             obs = self.normalize_obs(obs)
+        self.old_reward = rewards
         if self.training:
             self._update_reward(rewards)
         rewards = self.normalize_reward(rewards)
