@@ -23,7 +23,8 @@ from torch.distributions import Distribution
 from labcli.plugins.policy import torch_threads
 
 # torch checks a distribution's parameters when it is made, which on a GPU waits for the device
-# (SB3 makes one each rollout step and each mini-batch). RSL-RL and skrl turn it off at import.
+# (SB3 makes one each rollout step and each mini-batch). skrl turns it off at import, RSL-RL
+# when it makes its policy's distribution.
 Distribution.set_default_validate_args(False)
 
 # SB3's RolloutBuffer fields, [n_steps, n_envs, ...] each
