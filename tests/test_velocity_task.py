@@ -19,6 +19,8 @@ from typer.testing import CliRunner
 from labcli.commands.app import app
 from labcli.envs import metrics
 from labcli.gym import make_env
+from labcli.plugins import registry
+from labcli.runs import config
 
 GO1_XML = HERE / "go1.xml"
 DT = 4 * 0.005  # go1-flat: 200 Hz physics, decimation 4
@@ -212,6 +214,14 @@ def test_weights_are_per_second_as_isaac_lab_s():
     assert env._weights[0].tolist() == pytest.approx(
         [w * DT for w in env.cfg.weights(1.0).values()])
     env.close()
+
+
+def test_sb3_s_gpu_defaults_take_the_rate_measured_there_and_the_cpu_s_stay():
+    spec, sb3 = registry.get_task("go1-flat"), registry.get_framework("sb3")
+    _, gpu = config.resolve(spec, sb3, gpu_scale=True)
+    env, cpu = config.resolve(spec, sb3)
+    assert gpu.learning_rate == 1e-3 and gpu.batch_size == 4096 * 24 // 4
+    assert cpu.learning_rate == 5e-4 and cpu.batch_size == env.num_envs * 24 // 4
 
 
 def test_train_play_and_export_go1_from_the_command_line(tmp_path):
