@@ -49,7 +49,7 @@ from rich.table import Table
 from labcli.envs.env import LabVecEnv
 from labcli.plugins import registry
 from labcli.plugins.policy import one_torch_thread
-from labcli.runs.bench import bench, env_rate, rate, time_to_success, train_rate
+from labcli.runs.bench import bench, env_rate, rate, time_to_success
 
 REPO = Path(__file__).resolve().parents[1]
 TASK = "cartpole"
@@ -275,16 +275,14 @@ def thread_rates(tasks: list[str], envs: list[int], threads: list[int], seconds:
     for repeat in range(repeats):
         console.print(f"  threads, repeat {repeat + 1}/{repeats}", highlight=False)
         for task in tasks:
-            for row in bench(task, envs, backend="cpu", seconds=seconds, threads=threads):
+            for row in bench(task, envs, backend="cpu", seconds=seconds, threads=threads,
+                             framework=framework if task == TASK else None):
                 figures = runs[task, row.threads, row.num_envs]
                 figures["lab"].append(row.env_steps_per_s)
                 figures["rollout"].append(row.rollout_steps_per_s)
                 figures["ratio"].append(row.ratio_to_rollout)
-        if framework:
-            for t in threads:
-                for n in envs:
-                    runs[TASK, t, n]["train"].append(train_rate(
-                        TASK, framework, n, "cpu", "cpu", [f"env.threads={t}"]))
+                if row.train_steps_per_s is not None:
+                    figures["train"].append(row.train_steps_per_s)
     return {key: {what: statistics.median(values) for what, values in figures.items()}
             for key, figures in runs.items()}
 
