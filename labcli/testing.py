@@ -84,10 +84,11 @@ def train_small(name: str, logs_dir: Path, iterations: int, overrides: Sequence[
                           console=Console(file=io.StringIO()), command=["lab", "test"], **kwargs)
 
 
-def make_env(num_envs: int = NUM_ENVS, **cfg: Any) -> LabVecEnv:
-    """A cartpole env on the cpu backend with `cfg` over the task's defaults, for tests."""
+def make_env(num_envs: int = NUM_ENVS, device: str = "cpu", **cfg: Any) -> LabVecEnv:
+    """A cartpole env on `device`'s default backend (the cpu backend on the CPU) with `cfg`
+    over the task's defaults, for tests."""
     spec = registry.get_task(TASK)
-    return LabVecEnv(spec, spec.config_class(num_envs=num_envs, **cfg))
+    return LabVecEnv(spec, spec.config_class(num_envs=num_envs, **cfg), device=device)
 
 
 def load_policy(name: str, checkpoint: Path, env: Any) -> Policy:

@@ -22,8 +22,6 @@ from stable_baselines3.common.buffers import RolloutBuffer
 from stable_baselines3.common.vec_env import VecNormalize
 
 from labcli import testing
-from labcli.envs.env import LabVecEnv
-from labcli.plugins import registry
 
 STEPS, ENVS, OBS, ACTIONS = 6, 5, 3, 2
 DEVICES = ["cpu", pytest.param("cuda", marks=[pytest.mark.gpu, pytest.mark.skipif(
@@ -161,13 +159,8 @@ def test_batched_vec_normalize_on_the_device_gives_sb3s_vec_normalize(device, mo
     it sums in float64."""
     if device == "cpu":
         monkeypatch.setattr(BatchedVecNormalize, "on_device", property(lambda self: True))
-    spec = registry.get_task(testing.TASK)
-
-    def env() -> Sb3VecEnv:
-        return Sb3VecEnv(LabVecEnv(spec, spec.config_class(num_envs=16, episode_length_s=0.1),
-                                   device=device))
-
-    ours, sb3 = BatchedVecNormalize(env(), clip_obs=1.0), VecNormalize(env(), clip_obs=1.0)
+    ours, sb3 = (cls(Sb3VecEnv(testing.make_env(16, device, episode_length_s=0.1)),
+                     clip_obs=1.0) for cls in (BatchedVecNormalize, VecNormalize))
     assert ours.on_device
     close = {"rtol": 1e-5, "atol": 1e-5}
     np.testing.assert_allclose(ours.reset(), sb3.reset(), **close)
