@@ -84,10 +84,10 @@ def test_config_show_is_a_config_file_train_reproduces(tmp_path):
 
 
 @pytest.mark.parametrize("backend, expected", [
-    ("cpu", {"num_envs": 128, "num_steps_per_env": 32, "num_learning_epochs": 5,
-             "num_mini_batches": 4}),
+    ("cpu", {"num_envs": 64, "num_steps_per_env": 24, "num_learning_epochs": 5,
+             "num_mini_batches": 4, "actor_hidden_dims": [32, 32], "desired_kl": 0.01}),
     ("warp", {"num_envs": 4096, "num_steps_per_env": 24, "num_learning_epochs": 5,
-              "num_mini_batches": 4}),
+              "num_mini_batches": 4, "actor_hidden_dims": [64, 64], "desired_kl": 0.005}),
 ])
 def test_the_backend_picks_cartpoles_rsl_rl_scale(tmp_path, backend, expected):
     shown = lab("config", "show", "--task", "cartpole", "--framework", "rsl_rl", "--backend",
