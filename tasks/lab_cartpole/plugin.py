@@ -36,9 +36,10 @@ def register_tasks(register):
                     "learning_rate": 1e-3}}},
             # 64 envs × 24 steps, 5 epochs × 4 mini-batches (Isaac Lab's), Isaac Lab's [32, 32]
             # networks and KL target of 0.01: on this project's 2-core VM success 0.95 after
-            # 46-77 k steps, 3.2-7.9 s (seeds 0-5, median 5.0 s; deterministic play 87-98%),
-            # against 152-213 k steps and 8.7-11.8 s (median 9.7 s) with 128 envs × 32 steps,
-            # [64, 64] and 0.005 in the same hour.
+            # 46-77 k steps, a median 5.0-5.3 s (seeds 0-5, two rounds; deterministic play
+            # 87-98%), against 152-213 k steps and 9.7-12.1 s with 128 envs × 32 steps, [64, 64]
+            # and 0.005 in the same hour. Over the last ≥ 30 ended episodes rather than one
+            # iteration's (~6 at 64 envs): 6.2 s against 12.8 s.
             "rsl_rl": {"env": {"num_envs": 64}, "agent": {
                 "max_iterations": 100, "num_steps_per_env": 24, "num_learning_epochs": 5,
                 "num_mini_batches": 4, "desired_kl": 0.01, "entropy_coef": 0.0,
