@@ -85,7 +85,7 @@ def test_config_show_is_a_config_file_train_reproduces(tmp_path):
 
 @pytest.mark.parametrize("backend, expected", [
     ("cpu", {"num_envs": 64, "num_steps_per_env": 24, "num_learning_epochs": 5,
-             "num_mini_batches": 4, "actor_hidden_dims": [32, 32], "desired_kl": 0.01}),
+             "num_mini_batches": 4, "actor_hidden_dims": [32, 32], "desired_kl": 0.005}),
     ("warp", {"num_envs": 4096, "num_steps_per_env": 24, "num_learning_epochs": 5,
               "num_mini_batches": 4, "actor_hidden_dims": [64, 64], "desired_kl": 0.005}),
 ])

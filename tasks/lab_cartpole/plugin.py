@@ -34,25 +34,24 @@ def register_tasks(register):
                 "warp": {"env": {"num_envs": 4096}, "agent": {
                     "max_iterations": 60, "n_steps": 24, "batch_size": 12288, "n_epochs": 8,
                     "learning_rate": 1e-3}}},
-            # 64 envs × 24 steps, 5 epochs × 4 mini-batches (Isaac Lab's), Isaac Lab's [32, 32]
-            # networks and KL target of 0.01: on this project's 2-core VM success 0.95 after
-            # 46-77 k steps, a median 5.0-5.3 s (seeds 0-5, two rounds; deterministic play
-            # 87-98%), against 152-213 k steps and 9.7-12.1 s with 128 envs × 32 steps, [64, 64]
-            # and 0.005 in the same hour. Over the last ≥ 30 ended episodes rather than one
-            # iteration's (~6 at 64 envs): 6.2 s against 12.8 s.
+            # 64 envs × 24 steps, 5 epochs × 4 mini-batches (Isaac Lab's) and Isaac Lab's
+            # [32, 32] networks: on this project's 2-core VM success 0.95 after 55-100 k steps
+            # (seeds 0-5, median 5.9 s; deterministic play 84-100%, median 97.5%), against
+            # 152-213 k steps (median 12.1-12.4 s in two slower hours) with 128 envs × 32 steps
+            # and [64, 64]. Isaac Lab's KL target of 0.01 was faster (46-77 k steps, median
+            # 5.0-5.3 s) but its final policies played worse (82-98%).
             "rsl_rl": {"env": {"num_envs": 64}, "agent": {
                 "max_iterations": 100, "num_steps_per_env": 24, "num_learning_epochs": 5,
-                "num_mini_batches": 4, "desired_kl": 0.01, "entropy_coef": 0.0,
+                "num_mini_batches": 4, "desired_kl": 0.005, "entropy_coef": 0.0,
                 "use_clipped_value_loss": False, "actor_hidden_dims": [32, 32],
                 "critic_hidden_dims": [32, 32]},
                 # 4,096 envs: Isaac Lab's and mjlab's 24 steps × 5 epochs × 4 mini-batches. On
                 # one H100 success 0.95 came at 5.9 s of training (3.2 M steps), against 12.4 s
                 # (3.8 M) with 8 × 8 updates of 32 steps; 16 steps × 4 × 2 reached it at 5.2 s,
                 # but 5 × 2 of those not in 80 iterations, and 4 × 2 at 16,384 envs not in 60:
-                # too few updates a sample to rely on. Measured with [64, 64] networks and a KL
-                # target of 0.005, kept here.
+                # too few updates a sample to rely on. Measured with [64, 64] networks, kept here.
                 "warp": {"env": {"num_envs": 4096}, "agent": {
-                    "max_iterations": 100, "num_steps_per_env": 24, "desired_kl": 0.005,
+                    "max_iterations": 100, "num_steps_per_env": 24,
                     "actor_hidden_dims": [64, 64], "critic_hidden_dims": [64, 64]}}},
             "skrl": {"env": {"num_envs": 128}, "agent": {"max_iterations": 120, "rollouts": 32,
                                                          "mini_batches": 16, "desired_kl": 0.005},
