@@ -36,10 +36,10 @@ def register_tasks(register):
                     "learning_rate": 1e-3}}},
             # 64 envs × 24 steps, 5 epochs × 4 mini-batches (Isaac Lab's) and Isaac Lab's
             # [32, 32] networks: on this project's 2-core VM success 0.95 after 55-100 k steps
-            # (seeds 0-5, median 5.9 s; deterministic play 84-100%, median 97.5%), against
-            # 152-213 k steps (median 12.1-12.4 s in two slower hours) with 128 envs × 32 steps
-            # and [64, 64]. Isaac Lab's KL target of 0.01 was faster (46-77 k steps, median
-            # 5.0-5.3 s) but its final policies played worse (82-98%).
+            # (seeds 0-5, median 5.8 s; deterministic play 84-100%, median 97.5%), against
+            # 152-213 k steps (median 12.1-12.4 s in two neighbouring rounds) with 128 envs × 32
+            # steps and [64, 64]. Isaac Lab's KL target of 0.01 was faster (46-77 k steps, median
+            # 5.0-5.3 s) but its final policies played worse (80-98%; seed 0 87%).
             "rsl_rl": {"env": {"num_envs": 64}, "agent": {
                 "max_iterations": 100, "num_steps_per_env": 24, "num_learning_epochs": 5,
                 "num_mini_batches": 4, "desired_kl": 0.005, "entropy_coef": 0.0,
