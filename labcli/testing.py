@@ -384,14 +384,17 @@ def check_export(name: str, tmp_path: Path, overrides: Sequence[str] = ()) -> fl
 
 
 def check_training_improves(name: str, tmp_path: Path, overrides: Sequence[str] = (),
-                            iterations: int = 25, num_envs: int = 16, seed: int = 0,
+                            iterations: int = 25, num_envs: int | None = None, seed: int = 0,
                             factor: float = 1.5) -> tuple[float, float]:
-    """A short cartpole run with the task's defaults for the framework (plus `overrides`, not
-    the tiny ones: a 16-unit agent learns little in 25 iterations) must raise the mean episode
-    return. Returns start negative (a falling pole costs more than staying alive earns), so the
-    test is on the gain, not a ratio: the mean of the last three logged values must exceed the
-    mean of the first three by (`factor` - 1) x the first's magnitude (at least 1).
-    Returns (first, last). Measured on 2 cores: each built-in framework gains 1.4-3x that."""
+    """A short cartpole run with the task's defaults for the framework, env count included
+    (plus `overrides`, not the tiny ones: a 16-unit agent learns little in 25 iterations), must
+    raise the mean episode return. Returns start negative (a falling pole costs more than
+    staying alive earns), so the test is on the gain, not a ratio: the mean of the last three
+    logged values must exceed the mean of the first three by (`factor` - 1) x the first's
+    magnitude (at least 1). Returns (first, last). Measured on 2 cores, seeds 0-2: each built-in
+    framework gains 2.9-5.8x that. At 16 envs the gain was chance (-0.1x to 4.1x, under 1x in
+    three runs of nine), and a run's numbers differ between CPUs: a seed that passed on one CPU
+    failed on another."""
     outcome = train_small(name, tmp_path, iterations, overrides, num_envs=num_envs, seed=seed)
     returns = [v for _, v in sorted(read_scalars(outcome.run.dir)[metrics.MEAN_RETURN])]
     assert len(returns) >= 6, f"{name}: only {len(returns)} mean returns logged"
