@@ -43,7 +43,9 @@ class Sim:
 
     def unstable(self) -> torch.Tensor:
         """Envs whose state diverged (non-finite or absurd velocities)."""
-        return ~(self.qvel.abs() < UNSTABLE_VELOCITY).all(dim=1)
+        # The largest speed, not `all` over a boolean matrix: the same answer (a NaN's max is
+        # NaN, which is not below the limit) at 0.3-0.4 of the cost with 14-29 velocities.
+        return ~(self.qvel.abs().amax(dim=1) < UNSTABLE_VELOCITY)
 
     def model_field(self, name: str) -> torch.Tensor:
         """`[num_envs, ...]` values of an MjModel field that differs per env (friction, mass),
