@@ -421,7 +421,7 @@ def test_task_and_sim_reset_touch_only_the_masked_envs(make_env):
     mask = torch.tensor([True, False] * (NUM_ENVS // 2))
     env.sim.reset_to_defaults(mask)
     assert (env.sim.qpos[mask] == 0).all() and (env.sim.qvel[mask] == 0).all()
-    env.task.reset(mask, env.generator)
+    env.task.reset(mask, env.rng)
     assert torch.equal(env.sim.qpos[~mask], qpos[~mask])
     assert torch.equal(env.sim.qvel[~mask], qvel[~mask])
     assert (env.sim.qpos[mask] != qpos[mask]).all() and (env.sim.qpos[mask] != 0).all()

@@ -16,6 +16,7 @@ from gymnasium.vector.utils import batch_space
 from labcli.envs import metrics
 from labcli.envs.config import TaskConfig
 from labcli.envs.cuda_graph import GraphedStep
+from labcli.envs.random import EnvRandom
 from labcli.envs.render.scene import SceneRenderer
 from labcli.envs.sim import default_backend, make_sim
 from labcli.envs.spec import TaskSpec
@@ -43,7 +44,10 @@ class LabVecEnv(gym.vector.VectorEnv):
 
     def __init__(self, spec: TaskSpec, cfg: TaskConfig, *, backend: str | None = None,
                  device: str = "cpu", seed: int = 0,
-                 autoreset_mode: AutoresetMode | str = AutoresetMode.SAME_STEP):
+                 autoreset_mode: AutoresetMode | str = AutoresetMode.SAME_STEP,
+                 shard: tuple[int, int] | None = None):
+        """`shard=(first, total)`: these `cfg.num_envs` envs are envs `[first, first + num_envs)`
+        of `total` (the cpu backend's env shards; they draw as those envs of one env would)."""
         self.autoreset_mode = _autoreset_mode(autoreset_mode)
         self.metadata = {**self.metadata, "autoreset_mode": self.autoreset_mode}
         self.task_spec = spec
@@ -85,9 +89,10 @@ class LabVecEnv(gym.vector.VectorEnv):
                                device=self.device)
         self.termination_names = [*self.task.terminations(), UNSTABLE]
         self.metric_names = list(self.task.episode_metrics())
-        self.generator = torch.Generator(self.device)
-        self.generator.manual_seed(seed)
-        self.task.generator = self.generator
+        first, total = shard or (0, self.num_envs)
+        self.rng = EnvRandom(self.num_envs, self.device, first, total)
+        self.rng.manual_seed(seed)
+        self.task.rng = self.rng
         self._np_random, self._np_random_seed = gym.utils.seeding.np_random(seed)
 
         n, dev = self.num_envs, self.device
@@ -115,16 +120,21 @@ class LabVecEnv(gym.vector.VectorEnv):
         self._renderer: SceneRenderer | None = None
         self._resume_state: dict[str, torch.Tensor] | None = None
         # On a GPU the step is host-bound when eager: it replays as one CUDA graph instead.
-        self._graphed = (GraphedStep(self._step, [self.generator], f"the env step of task "
+        self._graphed = (GraphedStep(self._step, self.rng.generators, f"the env step of task "
                                      f"'{spec.name}'")
                          if self.device.type == "cuda" and cfg.cuda_graph else None)
+
+    @property
+    def threads(self) -> int | None:
+        """The cpu backend's physics threads; None on a GPU."""
+        return getattr(self.sim, "nthread", None)
 
     # gymnasium API ---------------------------------------------------------------------------
     def reset(self, *, seed: int | Sequence[int] | None = None,
               options: dict[str, Any] | None = None):
         if seed is not None:
-            seed = self._one_seed(seed)
-            self.generator.manual_seed(seed)
+            seed = self.one_seed(seed)
+            self.rng.manual_seed(seed)
             self._np_random, self._np_random_seed = gym.utils.seeding.np_random(seed)
         mask = (options or {}).get("reset_mask")
         if mask is None and self._resume_state is not None:
@@ -138,8 +148,8 @@ class LabVecEnv(gym.vector.VectorEnv):
             self._reset_envs(torch.as_tensor(mask, dtype=torch.bool, device=self.device))
         return self.observations(), {}
 
-    def _one_seed(self, seed: int | Sequence[int]) -> int:
-        """All envs share one generator: a list of seeds, one per env (as gymnasium's
+    def one_seed(self, seed: int | Sequence[int]) -> int:
+        """All envs share one seed: a list of seeds, one per env (as gymnasium's
         SyncVectorEnv takes them), is folded into one seed that depends on every one."""
         if isinstance(seed, (int, np.integer)):
             return int(seed)
@@ -247,12 +257,12 @@ class LabVecEnv(gym.vector.VectorEnv):
     # resume ----------------------------------------------------------------------------------
     def get_state(self) -> dict[str, torch.Tensor]:
         """What continues every episode exactly where it is: the sim's positions, velocities and
-        controls (what tasks read and write), episode counters and the reset generator."""
+        controls (what tasks read and write), episode counters and the random generators."""
         return {
             "qpos": self.sim.qpos.clone(), "qvel": self.sim.qvel.clone(),
             "ctrl": self.sim.ctrl.clone(), "episode_length": self.episode_length.clone(),
             "episode_return": self.episode_return.clone(),
-            "episode_terms": self.episode_terms.clone(), "generator": self.generator.get_state(),
+            "episode_terms": self.episode_terms.clone(), "generator": self.rng.get_state(),
         }
 
     def _state_targets(self) -> dict[str, torch.Tensor]:
@@ -260,21 +270,28 @@ class LabVecEnv(gym.vector.VectorEnv):
                 "episode_length": self.episode_length, "episode_return": self.episode_return,
                 "episode_terms": self.episode_terms}
 
-    def check_state(self, state: Any) -> None:
+    def check_state(self, state: Any, num_envs: int | None = None,
+                    rng: EnvRandom | None = None) -> None:
         """Raise a LabError unless `state` is one `get_state` of this env could have returned:
-        checked before a resumed run writes anything, so a damaged file cannot fail it later."""
+        checked before a resumed run writes anything, so a damaged file cannot fail it later.
+        `num_envs` and `rng`: of a whole env of which this one is a shard."""
         if not isinstance(state, dict):
             raise LabError(f"saved env state is a {type(state).__name__}, not a mapping")
         for name, target in self._state_targets().items():
             value = state.get(name)
-            if not isinstance(value, torch.Tensor) or tuple(value.shape) != tuple(target.shape):
+            shape = (num_envs or self.num_envs, *target.shape[1:])
+            if not isinstance(value, torch.Tensor) or tuple(value.shape) != shape:
                 shown = tuple(value.shape) if isinstance(value, torch.Tensor) else repr(value)
-                raise LabError(f"saved env state '{name}' is {shown}, this env's "
-                               f"{tuple(target.shape)}",
+                raise LabError(f"saved env state '{name}' is {shown}, this env's {shape}",
                                "resume with the num_envs and task the checkpoint was trained with")
+        generator = state.get("generator")
+        if isinstance(generator, torch.Tensor) and generator.dim() == 1:
+            raise LabError("saved env state has one random generator for all envs: a lab from "
+                           "before envs drew per block of envs saved it",
+                           "resume it with the lab that saved it, or train anew")
         try:
-            torch.Generator(self.device).set_state(state.get("generator"))
-        except (TypeError, RuntimeError) as exc:
+            (rng or self.rng).check_state(generator)
+        except (TypeError, ValueError, RuntimeError) as exc:
             raise LabError(f"saved env state's random generator is damaged: {first_line(exc)}"
                            ) from None
 
@@ -282,7 +299,7 @@ class LabVecEnv(gym.vector.VectorEnv):
         self.check_state(state)  # all checked before any is changed
         for name, target in self._state_targets().items():
             target.copy_(state[name])
-        self.generator.set_state(state["generator"])
+        self.rng.set_state(state["generator"])
         self.task.update()
 
     def __reduce__(self):
@@ -325,12 +342,29 @@ class LabVecEnv(gym.vector.VectorEnv):
         """Means over the episodes that ended since the last call, under `metrics` tags; empty
         when none ended. One host sync: call it once per training iteration, not per step.
         `reduce` sums the figures' totals over several envs' (data-parallel ranks) first."""
-        values = (self._stats if reduce is None else reduce(self._stats)).tolist()
+        values = self._stats if reduce is None else reduce(self._stats)
+        stats = self.summarize_stats(values)
         self._stats.zero_()
         overflows = {metrics.OVERFLOW + name: n for name, n in self.sim.pop_overflows().items()}
+        return {**stats, **overflows}
+
+    @property
+    def stats_size(self) -> int:
+        """How many figures `move_stats` adds up."""
+        return len(self._stats)
+
+    def move_stats(self, out: torch.Tensor) -> None:
+        """Add the running sums of ended episodes' figures to `out` and clear them here (an env
+        shard hands them to the whole env)."""
+        out.add_(self._stats)
+        self._stats.zero_()
+
+    def summarize_stats(self, totals: torch.Tensor) -> dict[str, float]:
+        """The means `pop_stats` reports, from sums laid out as this env keeps them."""
+        values = totals.tolist()
         count = values[0]
         if count == 0:
-            return overflows
+            return {}
         k = len(self.reward_names)
         stats = {
             metrics.EPISODES: count,
@@ -348,7 +382,7 @@ class LabVecEnv(gym.vector.VectorEnv):
         stats[metrics.NONFINITE_ACTIONS] = values[4 + k + t]
         for name, total in zip(self.metric_names, values[5 + k + t:], strict=True):
             stats[metrics.TASK_METRIC + name] = total / count
-        return {**stats, **overflows}
+        return stats
 
     # internals -------------------------------------------------------------------------------
     def _reset_envs(self, mask: torch.Tensor) -> bool:
@@ -359,7 +393,12 @@ class LabVecEnv(gym.vector.VectorEnv):
         if self._skip_idle_resets and not mask.any():
             return False
         self.sim.reset_to_defaults(mask)
-        self.task.reset(mask, self.generator)
+        if self._skip_idle_resets:
+            self.rng.draw_only_for(mask)
+        try:
+            self.task.reset(mask, self.rng)
+        finally:
+            self.rng.draw_only_for(None)
         self.task.update()
         self.episode_length.masked_fill_(mask, 0)
         self._episode_sums.masked_fill_(mask, 0.0)

@@ -14,6 +14,7 @@ import mujoco
 import torch
 
 from labcli.envs.config import TaskConfig
+from labcli.envs.random import EnvRandom
 from labcli.envs.sim import Sim
 
 
@@ -29,9 +30,11 @@ class Task:
     # The unit of each action's command, by action name (e.g. {"cart_force": "N"}).
     action_units: ClassVar[Mapping[str, str]] = {}
 
-    # The env's random generator, set by the env before the first reset: draw from it, not
-    # from torch's global one, so that seeded runs repeat (and a CUDA graph replays the draws).
-    generator: torch.Generator
+    # The env's random numbers, set by the env before the first reset: draw from it
+    # (`rng.uniform_(out)`, `rng.normal_(out)` on `[num_envs, ...]` tensors), not from torch's
+    # global generator, so that seeded runs repeat, on any number of threads (and a CUDA graph
+    # replays the draws).
+    rng: EnvRandom
 
     def __init__(self, cfg: TaskConfig, sim: Sim):
         self.cfg = cfg
@@ -87,7 +90,7 @@ class Task:
         """Boolean `[num_envs]` per termination cause (time-outs are the env's business)."""
         return {}
 
-    def reset(self, mask: torch.Tensor, generator: torch.Generator) -> None:
+    def reset(self, mask: torch.Tensor, rng: EnvRandom) -> None:
         """Randomize the state of the envs in `mask`; the sim already put them at the defaults."""
 
     def after_step(self) -> None:

@@ -8,6 +8,7 @@ import math
 import torch
 
 from lab_cartpole.config import CartpoleConfig
+from labcli.envs.random import EnvRandom
 from labcli.envs.sim import Sim
 from labcli.envs.task import Task
 
@@ -72,8 +73,8 @@ class Cartpole(Task):
     def terminations(self) -> dict[str, torch.Tensor]:
         return {"cart_out_of_bounds": self.out_of_bounds}
 
-    def reset(self, mask: torch.Tensor, generator: torch.Generator) -> None:
-        u = torch.rand(self._sample.shape, generator=generator, out=self._sample)
+    def reset(self, mask: torch.Tensor, rng: EnvRandom) -> None:
+        u = rng.uniform_(self._sample)
         # Not addcmul: its fused multiply-add rounds differently, and seeded runs would change.
         u.mul_(self._reset_width).add_(self._reset_low)
         m = mask[:, None]

@@ -26,8 +26,8 @@ class Uniform:
         self.task = task
 
     def __call__(self) -> torch.Tensor:
-        # The generator is read when drawing: the env hands the task its own after building it.
-        torch.rand(self.sample.shape, generator=self.task.generator, out=self.sample)
+        # The env's rng is read when drawing: the env hands the task its own after building it.
+        self.task.rng.uniform_(self.sample)
         # Not addcmul: its fused multiply-add rounds differently from one backend to the other.
         return self.sample.mul_(self.width).add_(self.low)
 

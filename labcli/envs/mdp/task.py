@@ -28,6 +28,7 @@ from labcli import refs
 from labcli.envs.mdp import sensors
 from labcli.envs.mdp.config import Group, RobotTaskConfig, Term
 from labcli.envs.mdp.robot import Robot
+from labcli.envs.random import EnvRandom
 from labcli.envs.sim import Sim
 from labcli.envs.task import Task
 from labcli.errors import LabError
@@ -104,8 +105,8 @@ class RobotTask(Task):
         self.ones = torch.ones(n, dtype=dtype, device=dev)
         self.action = torch.zeros(n, sim.model.nu, dtype=dtype, device=dev)
         self.previous_action = torch.zeros_like(self.action)
-        # Terms draw from the env's generator; the env sets it again before the first reset.
-        self.generator = torch.Generator(dev)
+        # Terms draw from the env's rng; the env sets its own before the first reset.
+        self.rng = EnvRandom(n, dev)
 
         self.actuation = impl_of(cfg.actions)(self, cfg.actions)
         self.action_names = [self.robot.joint_names[i] for i in range(sim.model.nu)]
@@ -169,7 +170,7 @@ class RobotTask(Task):
     def terminations(self) -> dict[str, torch.Tensor]:
         return {b.name: b.compute() for b in self._terminations}
 
-    def reset(self, mask: torch.Tensor, generator: torch.Generator) -> None:
+    def reset(self, mask: torch.Tensor, rng: EnvRandom) -> None:
         self.action.masked_fill_(mask[:, None], 0.0)
         self.previous_action.masked_fill_(mask[:, None], 0.0)
         self.robot.reset_to_default_pose(mask)
@@ -252,7 +253,7 @@ class ObservationPost:
 
     def __call__(self, obs: torch.Tensor) -> torch.Tensor:
         if self.noise is not None:  # uniform in (-noise, noise), Isaac Lab's Unoise
-            torch.rand(obs.shape, generator=self.task.generator, out=self.draw)
+            self.task.rng.uniform_(self.draw)
             obs.add_(self.draw.mul_(2.0).sub_(1.0).mul_(self.noise))
         if self.clip is not None:  # Isaac Lab's order: noise, clip, scale
             torch.maximum(obs, self.clip[0], out=obs)

@@ -7,6 +7,7 @@ import torch
 from pydantic import Field
 
 from labcli.envs.config import TaskConfig
+from labcli.envs.random import EnvRandom
 from labcli.envs.sim import Sim
 from labcli.envs.task import Task
 
@@ -65,13 +66,12 @@ class Reach(Task):
     def terminations(self) -> dict[str, torch.Tensor]:
         return {"left_arena": self._outside()}
 
-    def reset(self, mask: torch.Tensor, generator: torch.Generator) -> None:
+    def reset(self, mask: torch.Tensor, rng: EnvRandom) -> None:
         # Draw for every env and keep the masked ones: same work whatever the mask, and no
         # host sync to count them (this runs every step).
-        shape = (mask.shape[0], 2)
-        u = torch.rand(2, *shape, generator=generator, device=mask.device, dtype=self.target.dtype)
-        start = (2 * u[0] - 1) * self.cfg.start_range
-        target = (2 * u[1] - 1) * self.cfg.target_range
+        u = rng.rand(2, 2, dtype=self.target.dtype)  # [num_envs, 2, 2]
+        start = (2 * u[:, 0] - 1) * self.cfg.start_range
+        target = (2 * u[:, 1] - 1) * self.cfg.target_range
         m = mask[:, None]
         self.sim.qpos.copy_(torch.where(m, start, self.sim.qpos))
         self.target.copy_(torch.where(m, target, self.target))

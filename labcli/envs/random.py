@@ -1,0 +1,94 @@
+"""The env's random numbers: a generator per fixed block of envs, so that what an env draws does
+not depend on how many envs share its batch (one process, or the cpu backend's env shards)."""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+# Envs are cut into this many blocks (fewer when there are fewer envs), whatever the threads or
+# processes: the most env shards the cpu backend can make.
+BLOCKS = 16
+
+
+def block_bounds(total: int) -> list[int]:
+    """Where the blocks of `total` envs start, and the end: `[0, ..., total]`."""
+    count = min(BLOCKS, total)
+    return [b * total // count for b in range(count + 1)]
+
+
+class EnvRandom:
+    """Draws for envs `[first, first + num_envs)` of `total`, each block from its own generator:
+    fill `[num_envs, ...]` tensors with `uniform_` or `normal_` instead of passing a
+    `torch.Generator`, and every env gets the same numbers in one batch or in shards."""
+
+    def __init__(self, num_envs: int, device: torch.device | str, first: int = 0,
+                 total: int | None = None):
+        total = num_envs if total is None else total
+        bounds = block_bounds(total)
+        self.blocks = [b for b in range(len(bounds) - 1)
+                       if first <= bounds[b] and bounds[b + 1] <= first + num_envs]
+        if not self.blocks or bounds[self.blocks[0]] != first \
+                or bounds[self.blocks[-1] + 1] != first + num_envs:
+            raise ValueError(f"envs [{first}, {first + num_envs}) of {total} are not whole blocks")
+        self._rows = [slice(bounds[b] - first, bounds[b + 1] - first) for b in self.blocks]
+        self.num_envs, self.device = num_envs, torch.device(device)
+        self.generators = [torch.Generator(device) for _ in self.blocks]
+        self._ends = torch.tensor([r.stop for r in self._rows])
+        self._equal = len({r.stop - r.start for r in self._rows}) == 1
+        self._drawing = [True] * len(self.blocks)
+
+    def draw_only_for(self, mask: torch.Tensor | None) -> None:
+        """Until called with None, draws leave out (and their generators keep) the blocks with
+        no env in `mask`: what a block draws for a reset then depends on its own envs only, not
+        on whether others, in its batch or not, reset in the same step. On the CPU (it reads the
+        mask on the host)."""
+        if mask is None:
+            self._drawing = [True] * len(self.blocks)
+            return
+        if self._equal:  # one op, not a cumulative sum: this runs on most steps
+            self._drawing = mask.view(len(self._rows), -1).any(dim=1).tolist()
+            return
+        ended = mask.cumsum(0)[self._ends - 1]
+        self._drawing = torch.diff(ended, prepend=ended.new_zeros(1)).gt(0).tolist()
+
+    def manual_seed(self, seed: int) -> None:
+        for block, generator in zip(self.blocks, self.generators, strict=True):
+            generator.manual_seed(int(np.random.SeedSequence([seed, block]).generate_state(1)[0]))
+
+    def rand(self, *shape: int, dtype: torch.dtype | None = None) -> torch.Tensor:
+        """A new `[num_envs, *shape]` tensor of uniform samples in [0, 1)."""
+        return self.uniform_(torch.empty(self.num_envs, *shape, dtype=dtype, device=self.device))
+
+    def uniform_(self, out: torch.Tensor) -> torch.Tensor:
+        """`out` (`[num_envs, ...]`) filled with uniform samples in [0, 1), in place."""
+        return self._fill(out, torch.Tensor.uniform_)
+
+    def normal_(self, out: torch.Tensor) -> torch.Tensor:
+        """`out` (`[num_envs, ...]`) filled with standard normal samples, in place."""
+        return self._fill(out, torch.Tensor.normal_)
+
+    def _fill(self, out: torch.Tensor, draw) -> torch.Tensor:
+        for rows, generator, drawing in zip(self._rows, self.generators, self._drawing,
+                                            strict=True):
+            if drawing:
+                draw(out[rows], generator=generator)
+        return out
+
+    def get_state(self) -> torch.Tensor:
+        """Every block's generator state, a row each."""
+        return torch.stack([g.get_state() for g in self.generators])
+
+    def set_state(self, state: torch.Tensor) -> None:
+        for row, generator in zip(state, self.generators, strict=True):
+            generator.set_state(row.clone())
+
+    def check_state(self, state: object) -> None:
+        """Raise ValueError or TypeError unless `state` is one `get_state` could have returned."""
+        if not isinstance(state, torch.Tensor) or state.dim() != 2 \
+                or len(state) != len(self.generators):
+            shown = tuple(state.shape) if isinstance(state, torch.Tensor) else type(state).__name__
+            raise ValueError(f"{shown}, not a row for each of {len(self.generators)} blocks")
+        scratch = torch.Generator(self.generators[0].device)
+        for row in state:
+            scratch.set_state(row.clone())
