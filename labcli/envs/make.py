@@ -27,6 +27,11 @@ def make_env(spec: TaskSpec | GymTaskSpec, cfg: Any, *, backend: str | None = No
 
         return GymVecEnv(spec, cfg, device=device, seed=seed)
     from labcli.envs.env import LabVecEnv
+    from labcli.envs.shards import ShardedVecEnv, shard_count
+    from labcli.envs.sim import default_backend
 
+    if (backend or default_backend(device)) == "cpu" and device == "cpu" \
+            and shard_count(cfg.num_envs, cfg.threads) > 1:
+        return ShardedVecEnv(spec, cfg, seed=seed, autoreset_mode=autoreset_mode)
     return LabVecEnv(spec, cfg, backend=backend, device=device, seed=seed,
                      autoreset_mode=autoreset_mode)

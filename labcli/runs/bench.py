@@ -18,6 +18,8 @@ from rich.console import Console
 
 from labcli.envs import metrics
 from labcli.envs.env import LabVecEnv
+from labcli.envs.make import make_env
+from labcli.envs.shards import ShardedVecEnv
 from labcli.errors import LabError
 from labcli.plugins import registry
 from labcli.plugins.policy import one_torch_thread
@@ -57,7 +59,7 @@ def rate(step: Callable[[], int], seconds: float, sync: Callable[[], None] = lam
     return count / (time.perf_counter() - start)
 
 
-def env_rate(env: LabVecEnv, seconds: float) -> float:
+def env_rate(env: LabVecEnv | ShardedVecEnv, seconds: float) -> float:
     """The env as a learner sees it: uniform random actions in, torch tensors out, and on the
     CPU one torch thread, as lab's learners run it (`one_torch_thread`). Measured on 16 cores
     at 4,096 cartpole envs: 293k env-steps/s with torch's 16 threads, 699k with one."""
@@ -164,15 +166,23 @@ def bench(task: str, num_envs: Sequence[int], *, backend: str | None = None,
         [f"env.num_envs={n}", *overrides])["env"]])) for overrides in settings for n in num_envs]
     rows = []
     for overrides, cfg in runs:
-        env = LabVecEnv(spec, cfg, backend=backend, device=device)
+        env = make_env(spec, cfg, backend=backend, device=device)
         try:
-            row = BenchRow(task, env.backend, cfg.num_envs, env_rate(env, seconds),
-                           threads=env.sim.nthread)
-            if env.backend == "cpu":
-                row.rollout_steps_per_s = rollout_rate(env, seconds)
-                row.ratio_to_rollout = row.env_steps_per_s / row.rollout_steps_per_s
+            row = BenchRow(task, env.backend, cfg.num_envs, env_rate(env, seconds))
+            reached = env.get_state() if row.backend == "cpu" else None
         finally:
             env.close()
+        if reached is not None:
+            # On MuJoCo's pool of the env's threads, whether the env steps in shards or not, from
+            # the states the env reached (a robot's contacts cost more than its first pose).
+            reference = LabVecEnv(spec, cfg, backend="cpu")
+            try:
+                reference.set_state(reached)
+                row.threads = reference.sim.nthread
+                row.rollout_steps_per_s = rollout_rate(reference, seconds)
+            finally:
+                reference.close()
+            row.ratio_to_rollout = row.env_steps_per_s / row.rollout_steps_per_s
         if framework is not None:
             row.framework = framework
             row.train_steps_per_s = train_rate(task, framework, cfg.num_envs, backend, device,

@@ -297,7 +297,7 @@ def update_threads(env: Any, ranks: Ranks) -> int:
     host): on 16 cores the update on 8 threads made RSL-RL's cartpole train at 2.1x (1,024
     envs) and 2.6x (4,096) the steps/s of one, its humanoid at 2.6x (1,024); on all 16 threads
     skrl's cartpole slowed to 0.68x. Half of 2 cores is the one thread measured best there."""
-    threads = getattr(getattr(env, "sim", None), "nthread", None)
+    threads = getattr(env, "threads", None)  # the cpu backend's: its pool's, or its shards'
     return max(1, (threads or cores() // ranks.local_world_size) // 2)
 
 

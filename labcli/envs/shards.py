@@ -1,0 +1,435 @@
+"""The cpu backend on more than two cores: the envs in shards, one process each.
+
+Each shard is a whole `LabVecEnv` of its envs that steps its physics on one thread (MuJoCo's
+rollout on its own calling thread) and runs its task's torch code on its own core: the torch
+code's per-op cost, which does not shrink with more envs, is paid by every shard at once
+instead of once in series after MuJoCo's pool (on a 16-core host, 0.80–1.18 of the pool's
+rollout against 0.59–0.82 for one process; docs/benchmarks.md). The calling process steps
+shard 0 itself; the others are worker processes that read the actions from and write their
+outputs to shared memory, in lockstep with it. Envs draw per block (`labcli.envs.random`), so a
+fixed seed gives the same outputs whatever the number of shards.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import signal
+import sys
+import time
+import traceback
+import weakref
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+import torch
+import torch.multiprocessing as mp
+from gymnasium.vector import AutoresetMode
+
+from labcli.envs.config import TaskConfig
+from labcli.envs.cores import cores
+from labcli.envs.env import EPISODE, LabVecEnv, Reduce, _autoreset_mode
+from labcli.envs.random import BLOCKS, EnvRandom, block_bounds
+from labcli.envs.spec import TaskSpec
+from labcli.errors import LabError, first_line
+
+# Fewer envs than this in a shard, and its process costs more than it saves (prototype: 64
+# cartpole envs a shard on 16 cores still gained; shards of 16 lost).
+MIN_SHARD_ENVS = 64
+# How long a waiting process polls before it sleeps: a step's gap is shorter than a sleep's
+# wake-up on a VM, a learner's update (the workers' wait) longer.
+SPIN_S = 0.002
+START_TIMEOUT_S = 300.0
+
+
+def shard_count(num_envs: int, threads: int | None) -> int:
+    """How many processes step `num_envs` envs on `threads` threads: one per thread up to the
+    env's blocks and the cores this process may use (a process waiting its turn for a core
+    stalls them all), in a power of two so that every shard holds as many blocks; none on two
+    threads or fewer (the cpu backend's own two-thread step is as fast there)."""
+    threads = min(threads or cores(), cores())
+    if threads <= 2:
+        return 1
+    count = 1
+    while count * 2 <= min(threads, BLOCKS, num_envs // MIN_SHARD_ENVS):
+        count *= 2
+    return count
+
+
+@dataclass
+class _Shard:
+    first: int
+    stop: int
+    blocks: slice
+
+
+def _layout(num_envs: int, count: int) -> list[_Shard]:
+    bounds = block_bounds(num_envs)
+    per, left = divmod(len(bounds) - 1, count)
+    if left or not per:
+        raise LabError(f"{num_envs} envs are {len(bounds) - 1} blocks: they do not make "
+                       f"{count} shards of whole blocks", "ask for a power of two up to "
+                       f"{len(bounds) - 1} shards")
+    return [_Shard(bounds[i * per], bounds[(i + 1) * per], slice(i * per, (i + 1) * per))
+            for i in range(count)]
+
+
+def _buffers(env: LabVecEnv, num_envs: int, count: int) -> dict[str, torch.Tensor]:
+    """The tensors the processes share: the actions in, every output of a step out."""
+    obs, act = env.single_observation_space.shape[0], env.single_action_space.shape[0]
+    n, t = num_envs, len(env.termination_names)
+    return {name: tensor.share_memory_() for name, tensor in {
+        "actions": torch.zeros(n, act), "obs": torch.zeros(n, obs),
+        "final_obs": torch.zeros(n, obs), "reward": torch.zeros(n),
+        "terminated": torch.zeros(n, dtype=torch.bool),
+        "truncated": torch.zeros(n, dtype=torch.bool), "done": torch.zeros(n, dtype=torch.bool),
+        "r": torch.zeros(n), "l": torch.zeros(n, dtype=torch.long),
+        "success": torch.zeros(n, dtype=torch.bool),
+        "terminations": torch.zeros(n, t, dtype=torch.bool),
+        "stats": torch.zeros(count, env.stats_size, dtype=torch.float64),
+    }.items()}
+
+
+def _step_into(env: LabVecEnv, buffers: dict[str, torch.Tensor], shard: _Shard,
+               index: int) -> None:
+    """Step one shard on its rows of the shared actions; write its outputs to its rows."""
+    rows = slice(shard.first, shard.stop)
+    obs, reward, terminated, truncated, info = env.step(buffers["actions"][rows])
+    out = {"obs": obs, "reward": reward, "terminated": terminated, "truncated": truncated,
+           "done": info[f"_{EPISODE}"], "r": info[EPISODE]["r"], "l": info[EPISODE]["l"],
+           "success": info[EPISODE]["success"], "terminations": info["terminations"]}
+    if "final_obs" in info:
+        out["final_obs"] = info["final_obs"]
+    for name, value in out.items():
+        buffers[name][rows].copy_(value)
+    env.move_stats(buffers["stats"][index])
+
+
+def _serve(spec: TaskSpec, cfg: TaskConfig, seed: int, mode: AutoresetMode, shard: _Shard,
+           total: int, index: int, buffers: dict[str, torch.Tensor], go: Any, done: Any,
+           conn: Any) -> None:
+    """A worker process: build its shard, then serve steps and commands until told to close."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the caller's: it stops in order
+    torch.set_num_threads(1)
+    try:
+        env = LabVecEnv(spec, cfg, backend="cpu", seed=seed, autoreset_mode=mode,
+                        shard=(shard.first, total))
+    except Exception as exc:  # reported by the caller as one line
+        conn.send(("error", first_line(exc)))
+        return
+    conn.send(("ok", None))
+    handlers = _Handlers(env, buffers, shard)
+    while True:
+        deadline = time.perf_counter() + SPIN_S
+        while not go.acquire(False):
+            if time.perf_counter() > deadline:
+                go.acquire()
+                break
+        if not conn.poll():
+            try:
+                _step_into(env, buffers, shard, index)
+            except Exception as exc:  # sent before `done`: the caller reads it after waiting
+                conn.send(("error", _report(exc)))
+            done.release()
+            continue
+        command, args = conn.recv()
+        if command == "close":
+            env.close()
+            return
+        try:
+            conn.send(("ok", getattr(handlers, command)(*args)))
+        except Exception as exc:
+            conn.send(("error", _report(exc)))
+
+
+def _report(exc: BaseException) -> str:
+    """An error's one line for the caller, its traceback after it (for a bug's report)."""
+    return f"{first_line(exc)}\n{traceback.format_exc()}"
+
+
+class _Handlers:
+    """What the caller asks of a worker's shard between steps."""
+
+    def __init__(self, env: LabVecEnv, buffers: dict[str, torch.Tensor], shard: _Shard):
+        self.env, self.buffers, self.rows = env, buffers, slice(shard.first, shard.stop)
+
+    def reset(self, seed: int | None, mask: torch.Tensor | None,
+              state: dict[str, Any] | None) -> None:
+        if state is not None:
+            self.env.resume_from(state)
+        options = None if mask is None else {"reset_mask": mask}
+        obs, _ = self.env.reset(seed=seed, options=options)
+        self.buffers["obs"][self.rows].copy_(obs)
+
+    def observations(self) -> None:
+        self.buffers["obs"][self.rows].copy_(self.env.observations())
+
+    def get_state(self) -> dict[str, torch.Tensor]:
+        return self.env.get_state()
+
+    def set_state(self, state: dict[str, torch.Tensor]) -> None:
+        self.env.set_state(state)
+
+    def snapshot(self) -> dict[str, Any]:
+        """All a pickled copy of the shard needs (its `__reduce__` state)."""
+        return self.env.__reduce__()[2]
+
+    def restore(self, state: dict[str, Any]) -> None:
+        self.env.__setstate__(state)
+
+
+class _Worker:
+    def __init__(self, ctx: Any, args: tuple, index: int):
+        self.go, self.done = ctx.Semaphore(0), ctx.Semaphore(0)
+        self.conn, theirs = ctx.Pipe()
+        self.index = index
+        self.process = ctx.Process(target=_serve, args=(*args, self.go, self.done, theirs),
+                                   name=f"lab-env-shard-{index}", daemon=True)
+        with _main_not_rerun():
+            self.process.start()
+        theirs.close()
+
+    def answer(self) -> Any:
+        """The worker's reply to the last command; its error as a LabError."""
+        while not self.conn.poll(0.1):
+            self._check_alive()
+        kind, value = self.conn.recv()
+        if kind == "error":
+            raise LabError(f"env shard {self.index} (a worker process): {value.splitlines()[0]}")
+        return value
+
+    def call(self, command: str, *args: Any) -> Any:
+        self.conn.send((command, args))
+        self.go.release()
+        return self.answer()
+
+    def wait(self) -> None:
+        deadline = time.perf_counter() + SPIN_S
+        while not self.done.acquire(False):
+            if time.perf_counter() > deadline:
+                while not self.done.acquire(timeout=0.1):
+                    self._check_alive()
+                break
+        if self.conn.poll():  # a step raised: its error came first
+            self.answer()
+
+    def _check_alive(self) -> None:
+        if not self.process.is_alive():
+            raise LabError(f"env shard {self.index}'s worker process ended (exit code "
+                           f"{self.process.exitcode})", "see the lines above it for why")
+
+
+@contextlib.contextmanager
+def _main_not_rerun() -> Iterator[None]:
+    """A spawned process runs the parent's main script again before its target, unless that
+    script guards itself with `if __name__ == "__main__"`: a user's unguarded script would start
+    its training again in every worker. The worker needs nothing from it (its target and
+    arguments import from lab and the task's plugin), so it is not told of the script."""
+    main = sys.modules["__main__"]
+    saved = {name: main.__dict__[name] for name in ("__spec__", "__file__")
+             if name in main.__dict__}
+    main.__spec__ = None
+    main.__dict__.pop("__file__", None)
+    try:
+        yield
+    finally:
+        main.__dict__.update(saved)
+
+
+def _stop(workers: list[_Worker]) -> None:
+    for worker in workers:
+        if worker.process.is_alive():
+            try:
+                worker.conn.send(("close", ()))
+                worker.go.release()
+            except (BrokenPipeError, OSError):
+                pass
+    for worker in workers:
+        worker.process.join(timeout=5)
+        if worker.process.is_alive():
+            worker.process.kill()
+            worker.process.join()
+        worker.conn.close()
+
+
+class ShardedVecEnv(gym.vector.VectorEnv):
+    """`LabVecEnv`'s interface over shards of its envs in processes (see the module's text).
+    `sim` and `task` are shard 0's (env 0 and its neighbours): render and the viewer show env 0
+    as they do for one process."""
+
+    render_mode = "rgb_array"
+
+    def __init__(self, spec: TaskSpec, cfg: TaskConfig, *, seed: int = 0,
+                 autoreset_mode: AutoresetMode | str = AutoresetMode.SAME_STEP,
+                 shards: int | None = None):
+        """`shards`: how many, a power of two (by default `shard_count`'s, for the config's
+        threads on this machine's cores)."""
+        self.autoreset_mode = _autoreset_mode(autoreset_mode)
+        self.task_spec, self.cfg = spec, cfg
+        self.num_envs = n = cfg.num_envs
+        self.backend, self.device = "cpu", torch.device("cpu")
+        self._shards = _layout(n, shards or shard_count(n, cfg.threads))
+        self.threads = len(self._shards)
+
+        def shard_cfg(shard: _Shard) -> TaskConfig:
+            return cfg.model_copy(update={"num_envs": shard.stop - shard.first, "threads": 1})
+
+        first = self._shards[0]
+        # Shard 0 first, here: a config the task refuses fails before any process starts.
+        self._local = LabVecEnv(spec, shard_cfg(first), backend="cpu", seed=seed,
+                                autoreset_mode=self.autoreset_mode, shard=(0, n))
+        local = self._local
+        for name in ("metadata", "step_dt", "max_episode_length", "observation_names",
+                     "action_names", "single_observation_space", "single_action_space",
+                     "clip_actions", "reward_names", "termination_names", "metric_names",
+                     "sim", "task"):
+            setattr(self, name, getattr(local, name))
+        self.observation_space = gym.vector.utils.batch_space(self.single_observation_space, n)
+        self.action_space = gym.vector.utils.batch_space(self.single_action_space, n)
+        self._rng = EnvRandom(n, "cpu")  # checks a whole env's saved generator states
+        self._np_random, self._np_random_seed = gym.utils.seeding.np_random(seed)
+        self._resume_state: dict[str, torch.Tensor] | None = None
+        self._buffers = _buffers(local, n, len(self._shards))
+        ctx = mp.get_context("spawn")
+        self._workers: list[_Worker] = []
+        self._stop_workers = weakref.finalize(self, _stop, self._workers)
+        try:
+            for i, shard in enumerate(self._shards[1:], start=1):
+                self._workers.append(_Worker(ctx, (spec, shard_cfg(shard), seed,
+                                                   self.autoreset_mode, shard, n, i,
+                                                   self._buffers), i))
+            for worker in self._workers:
+                worker.answer()
+        except BaseException:
+            self.close()
+            raise
+
+    # gymnasium API ---------------------------------------------------------------------------
+    def reset(self, *, seed: int | Sequence[int] | None = None,
+              options: dict[str, Any] | None = None):
+        if seed is not None:
+            seed = self._local.one_seed(seed)
+            self._np_random, self._np_random_seed = gym.utils.seeding.np_random(seed)
+        mask = (options or {}).get("reset_mask")
+        if mask is not None:
+            mask = torch.as_tensor(mask, dtype=torch.bool)
+        state = None
+        if mask is None:
+            state, self._resume_state = self._resume_state, None
+        parts = self._split(state) if state is not None else [None] * len(self._shards)
+        self._each("reset", *([seed, self._rows(mask, shard), part]
+                              for shard, part in zip(self._shards, parts, strict=True)))
+        if mask is None:
+            self._buffers["stats"].zero_()
+        return self._buffers["obs"].clone(), {}
+
+    def step(self, actions: torch.Tensor):
+        actions = torch.as_tensor(actions, dtype=torch.float32)
+        if actions.shape != self.action_space.shape:
+            raise LabError(f"actions of shape {tuple(actions.shape)} for an env of "
+                           f"{self.num_envs} envs with {len(self.action_names)} actions each",
+                           f"pass a [{self.num_envs}, {len(self.action_names)}] tensor")
+        b = self._buffers
+        b["actions"].copy_(actions)
+        for worker in self._workers:
+            worker.go.release()
+        interrupted = None
+        try:
+            _step_into(self._local, b, self._shards[0], 0)
+        except KeyboardInterrupt as exc:  # the workers still step: wait for them, then stop
+            interrupted = exc
+        for worker in self._workers:
+            worker.wait()
+        if interrupted is not None:
+            raise interrupted
+        done = b["done"].clone()
+        info = {EPISODE: {"r": b["r"].clone(), "l": b["l"].clone(),
+                          "success": b["success"].clone()},
+                f"_{EPISODE}": done, "terminations": b["terminations"].clone()}
+        if self.autoreset_mode is AutoresetMode.SAME_STEP:
+            info["final_obs"], info["_final_obs"] = b["final_obs"].clone(), done
+        return (b["obs"].clone(), b["reward"].clone(), b["terminated"].clone(),
+                b["truncated"].clone(), info)
+
+    def close_extras(self, **kwargs: Any) -> None:
+        self._stop_workers()
+        self._local.close()
+
+    # what LabVecEnv offers besides -----------------------------------------------------------
+    def render(self) -> np.ndarray:
+        return self._local.render()
+
+    def mj_scene(self):
+        return self._local.mj_scene()
+
+    def describe(self) -> dict[str, Any]:
+        return self._local.describe()
+
+    def observations(self) -> torch.Tensor:
+        self._each("observations")
+        return self._buffers["obs"].clone()
+
+    def pop_stats(self, reduce: Reduce | None = None) -> dict[str, float]:
+        totals = self._buffers["stats"].sum(dim=0)
+        self._buffers["stats"].zero_()
+        return self._local.summarize_stats(totals if reduce is None else reduce(totals))
+
+    def get_state(self) -> dict[str, torch.Tensor]:
+        parts = self._each("get_state")
+        return {name: torch.cat([part[name] for part in parts]) for name in parts[0]}
+
+    def check_state(self, state: Any) -> None:
+        self._local.check_state(state, num_envs=self.num_envs, rng=self._rng)
+
+    def set_state(self, state: dict[str, torch.Tensor]) -> None:
+        self._each("set_state", *([part] for part in self._split(state)))
+
+    def resume_from(self, state: dict[str, torch.Tensor]) -> None:
+        self._resume_state = state
+
+    def __reduce__(self):
+        # Worker processes do not pickle: a copy is built anew and put in this one's state.
+        return (_rebuilt, (self.task_spec, self.cfg, self.autoreset_mode, len(self._shards)),
+                {"shards": self._each("snapshot"), "stats": self._buffers["stats"].clone(),
+                 "np_random": self._np_random.bit_generator.state,
+                 "np_random_seed": self._np_random_seed})
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self._each("restore", *([part] for part in state["shards"]))
+        self._buffers["stats"].copy_(state["stats"])
+        self._np_random.bit_generator.state = state["np_random"]
+        self._np_random_seed = state["np_random_seed"]
+
+    @property
+    def episode_length(self) -> torch.Tensor:
+        """Every env's steps in its episode so far (a copy: gathered from the shards)."""
+        return self.get_state()["episode_length"]
+
+    # internals -------------------------------------------------------------------------------
+    def _each(self, command: str, *args_per_shard: Sequence[Any]) -> list[Any]:
+        """Run a `_Handlers` command on every shard (here and in the workers at once); their
+        answers in shard order. `args_per_shard[i]`: shard i's arguments (none if left out)."""
+        args = list(args_per_shard) or [()] * len(self._shards)
+        for worker, worker_args in zip(self._workers, args[1:], strict=True):
+            worker.conn.send((command, tuple(worker_args)))
+            worker.go.release()
+        mine = getattr(_Handlers(self._local, self._buffers, self._shards[0]), command)(*args[0])
+        return [mine, *(worker.answer() for worker in self._workers)]
+
+    def _split(self, state: dict[str, torch.Tensor]) -> list[dict[str, torch.Tensor]]:
+        """A whole env's state cut into each shard's."""
+        self.check_state(state)
+        return [{name: (value[shard.blocks] if name == "generator"
+                        else value[shard.first:shard.stop]) for name, value in state.items()}
+                for shard in self._shards]
+
+    @staticmethod
+    def _rows(mask: torch.Tensor | None, shard: _Shard) -> torch.Tensor | None:
+        return None if mask is None else mask[shard.first:shard.stop].clone()
+
+
+def _rebuilt(spec: TaskSpec, cfg: TaskConfig, autoreset_mode: AutoresetMode,
+             shards: int) -> ShardedVecEnv:
+    return ShardedVecEnv(spec, cfg, autoreset_mode=autoreset_mode, shards=shards)

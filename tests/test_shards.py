@@ -1,0 +1,175 @@
+"""The cpu backend's env shards: processes that step as one env, with the same outputs whatever
+their number, and state that moves between sharded and unsharded envs."""
+
+from __future__ import annotations
+
+import copy
+import os
+import signal
+
+import pytest
+import torch
+
+from labcli.envs import metrics
+from labcli.envs import shards as shards_module
+from labcli.envs.env import EPISODE, LabVecEnv
+from labcli.envs.make import make_env
+from labcli.envs.random import EnvRandom
+from labcli.envs.shards import ShardedVecEnv, shard_count
+from labcli.errors import LabError
+from labcli.plugins import registry
+
+
+def build(task: str, num_envs: int, shards: int | None = None, **cfg) -> LabVecEnv:
+    spec = registry.get_task(task)
+    config = spec.config_class(num_envs=num_envs, **cfg)
+    if shards is None:
+        return LabVecEnv(spec, config, backend="cpu", seed=0)
+    return ShardedVecEnv(spec, config, seed=0, shards=shards)
+
+
+def trajectory(env, steps: int, seed: int = 5) -> list[torch.Tensor]:
+    """Every output of a reset and `steps` steps of seeded random actions, flattened."""
+    obs, _ = env.reset(seed=seed)
+    gen = torch.Generator().manual_seed(seed)
+    out = [obs]
+    for _ in range(steps):
+        action = torch.rand(env.action_space.shape, generator=gen) * 2 - 1
+        obs, reward, terminated, truncated, info = env.step(action)
+        out += [obs, reward, terminated, truncated, info["terminations"], info[f"_{EPISODE}"],
+                *info[EPISODE].values(), *([info["final_obs"]] if "final_obs" in info else [])]
+    return out
+
+
+def assert_same(a: list[torch.Tensor], b: list[torch.Tensor]) -> None:
+    assert len(a) == len(b)
+    for i, (x, y) in enumerate(zip(a, b, strict=True)):
+        assert x.dtype == y.dtype and torch.equal(x, y), f"output {i} differs"
+
+
+@pytest.mark.parametrize("task, num_envs, mode, steps, cfg", [
+    ("cartpole", 128, "same_step", 400, {}),  # episodes end and reset in every shard
+    ("cartpole", 128, "next_step", 200, {}),
+    # Draws every step (observation noise, pushes) and on resets: time-outs every 15 steps.
+    ("go1-flat", 64, "same_step", 40, {"episode_length_s": 0.3}),
+])
+def test_shards_give_the_outputs_of_one_env(task, num_envs, mode, steps, cfg):
+    spec = registry.get_task(task)
+    cfg = spec.config_class(num_envs=num_envs, threads=2, **cfg)
+    one = LabVecEnv(spec, cfg, backend="cpu", seed=0, autoreset_mode=mode)
+    expected, expected_stats = trajectory(one, steps), one.pop_stats()
+    one.close()
+    for count in (2, 4):
+        env = ShardedVecEnv(spec, cfg, seed=0, autoreset_mode=mode, shards=count)
+        try:
+            assert_same(trajectory(env, steps), expected)
+            # Summed per shard, then over shards: the last bits may round differently.
+            assert env.pop_stats() == pytest.approx(expected_stats, rel=1e-12)
+        finally:
+            env.close()
+    assert expected_stats[metrics.EPISODES] > 0  # envs ended and reset, in every shard's rows
+
+
+@pytest.fixture
+def sharded():
+    """128 cartpole envs in 2 shards (closed after the test)."""
+    env = build("cartpole", 128, shards=2)
+    yield env
+    env.close()
+
+
+def test_state_moves_between_sharded_and_unsharded_envs(sharded):
+    trajectory(sharded, 150)
+    saved = sharded.get_state()
+    one = build("cartpole", 128)
+    one.set_state(saved)
+    gen = torch.Generator().manual_seed(1)
+    twin = copy.deepcopy(sharded)  # a pickled copy: rebuilt, then put in the same state
+    try:
+        for _ in range(150):
+            action = torch.rand(128, 1, generator=gen) * 2 - 1
+            outs = [env.step(action) for env in (sharded, one, twin)]
+            for out in outs[1:]:
+                assert torch.equal(out[0], outs[0][0]) and torch.equal(out[1], outs[0][1])
+                assert torch.equal(out[4][f"_{EPISODE}"], outs[0][4][f"_{EPISODE}"])
+        assert sharded.pop_stats() == twin.pop_stats()
+    finally:
+        twin.close()
+        one.close()
+    with pytest.raises(LabError, match="'qpos' is \\(64, 2\\), this env's \\(128, 2\\)"):
+        sharded.set_state({**saved, "qpos": saved["qpos"][:64]})
+    # A checkpoint of a lab from before the blocks: one generator's state.
+    with pytest.raises(LabError, match="one random generator for all envs"):
+        sharded.set_state({**saved, "generator": torch.Generator().get_state()})
+
+
+def test_reset_mask_observations_and_resume_reach_every_shard(sharded):
+    sharded.reset(seed=3)
+    before = sharded.observations()
+    mask = torch.zeros(128, dtype=torch.bool)
+    mask[[5, 100]] = True  # one env in each shard
+    obs, _ = sharded.reset(options={"reset_mask": mask})
+    changed = (obs != before).any(dim=1)
+    assert changed[[5, 100]].all() and not changed[~mask].any()
+    assert torch.equal(sharded.observations(), obs)
+    state = sharded.get_state()
+    trajectory(sharded, 20)
+    sharded.resume_from(state)
+    obs, _ = sharded.reset()  # the library's first reset continues the saved episodes
+    assert torch.equal(obs, before.where(~mask[:, None], obs))
+    assert torch.equal(sharded.episode_length, state["episode_length"])
+
+
+def test_a_worker_that_dies_is_one_line_not_a_hang(sharded):
+    sharded.reset(seed=0)
+    worker = sharded._workers[0].process
+    os.kill(worker.pid, signal.SIGKILL)
+    worker.join()
+    with pytest.raises(LabError, match="env shard 1's worker process ended"):
+        sharded.step(torch.zeros(128, 1))
+
+
+@pytest.mark.parametrize("total, block", [(64, 4), (100, 6)])  # blocks of 6 and 7 envs
+def test_envs_draw_the_same_numbers_in_shards_and_in_one_batch(total, block):
+    half = total // 2
+    whole, second = EnvRandom(total, "cpu"), EnvRandom(half, "cpu", first=half, total=total)
+    whole.manual_seed(7)
+    second.manual_seed(7)
+    assert torch.equal(whole.rand(3)[half:], second.rand(3))
+    # Blocks with no env in the reset mask neither draw nor advance.
+    mask = torch.zeros(half, dtype=torch.bool)
+    mask[0] = True  # in the shard's first block
+    second.draw_only_for(mask)
+    partial = second.uniform_(torch.full((half, 3), -1.0))
+    second.draw_only_for(None)
+    assert (partial[block:] == -1).all() and (partial[:block] >= 0).all()
+    assert torch.equal(second.rand(3)[block:], whole.rand(3)[half + block:])
+    normal = whole.normal_(torch.empty(total, 2))
+    assert torch.equal(second.normal_(torch.empty(half, 2))[block:], normal[half + block:])
+    with pytest.raises(ValueError, match="not whole blocks"):
+        EnvRandom(30, "cpu", first=1, total=64)
+
+
+def test_the_shard_count_follows_threads_cores_and_envs(monkeypatch):
+    monkeypatch.setattr(shards_module, "cores", lambda: 16)
+    assert [shard_count(4096, t) for t in (1, 2, 3, 4, 7, 8, 12, 16, 32)] == \
+        [1, 1, 2, 4, 4, 8, 8, 16, 16]
+    assert shard_count(4096, None) == 16
+    assert [shard_count(n, 16) for n in (64, 128, 256, 1024)] == [1, 2, 4, 16]
+    monkeypatch.setattr(shards_module, "cores", lambda: 2)
+    assert shard_count(4096, 16) == 1  # no more processes than cores
+    with pytest.raises(LabError, match="do not make 3 shards"):
+        build("cartpole", 128, shards=3)
+
+
+def test_make_env_shards_the_cpu_backend_on_more_than_two_cores(monkeypatch):
+    monkeypatch.setattr(shards_module, "cores", lambda: 4)
+    spec = registry.get_task("cartpole")
+    env = make_env(spec, spec.config_class(num_envs=256, threads=4), seed=0)
+    try:
+        assert isinstance(env, ShardedVecEnv) and env.threads == 4
+    finally:
+        env.close()
+    two = make_env(spec, spec.config_class(num_envs=256, threads=2), seed=0)
+    assert isinstance(two, LabVecEnv)
+    two.close()
