@@ -225,10 +225,13 @@ def test_unreadable_checkpoints_raise_lab_error(tmp_path, trained, content):
 @pytest.mark.slow
 def test_cartpole_defaults_reach_success(tmp_path):
     from labcli.runs import play  # `lab play`'s library side
+    from labcli.runs.bench import time_to_success
 
     outcome = training.train("cartpole", "rsl_rl", logs_dir=tmp_path,
                              console=Console(file=io.StringIO()))
-    assert outcome.summary["success_rate"] >= 0.95
+    # Reached during training (the last iteration's rate alone is ~6 episodes at the defaults:
+    # one failure reads 0.8), and judged on 200 episodes of the final policy.
+    assert time_to_success(outcome.run.dir, 0.95) is not None
     assert outcome.summary["wall_time_s"] < 120
     _, episodes = play.play(run_dir=outcome.run.dir, episodes=200)
     assert episodes.success_rate >= 0.95
