@@ -335,15 +335,25 @@ class ShardedVecEnv(gym.vector.VectorEnv):
         b["actions"].copy_(actions)
         for worker in self._workers:
             worker.go.release()
-        interrupted = None
+        # Whatever happens here (an error, Ctrl-C), every worker finishes this step before the
+        # step ends: a worker left behind would answer the next step with this one.
+        failure: BaseException | None = None
         try:
             _step_into(self._local, b, self._shards[0], 0)
-        except KeyboardInterrupt as exc:  # the workers still step: wait for them, then stop
-            interrupted = exc
+        except BaseException as exc:
+            failure = exc
         for worker in self._workers:
-            worker.wait()
-        if interrupted is not None:
-            raise interrupted
+            while True:
+                try:
+                    worker.wait()
+                except KeyboardInterrupt as exc:  # wait on: the worker is still stepping
+                    failure = failure or exc
+                    continue
+                except LabError as exc:  # the worker's step failed, or the worker is gone
+                    failure = failure or exc
+                break
+        if failure is not None:
+            raise failure
         done = b["done"].clone()
         info = {EPISODE: {"r": b["r"].clone(), "l": b["l"].clone(),
                           "success": b["success"].clone()},
