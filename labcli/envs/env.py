@@ -161,11 +161,7 @@ class LabVecEnv(gym.vector.VectorEnv):
         return int(np.random.SeedSequence([int(s) for s in seeds]).generate_state(1)[0])
 
     def step(self, actions: torch.Tensor):
-        actions = torch.as_tensor(actions, device=self.device, dtype=torch.float32)
-        if actions.shape != self.action_space.shape:
-            raise LabError(f"actions of shape {tuple(actions.shape)} for an env of "
-                           f"{self.num_envs} envs with {len(self.action_names)} actions each",
-                           f"pass a [{self.num_envs}, {len(self.action_names)}] tensor")
+        actions = checked_actions(actions, self.action_space.shape, self.device)
         if self._graphed is not None:
             return self._graphed(actions)
         return self._step(actions)
@@ -390,12 +386,10 @@ class LabVecEnv(gym.vector.VectorEnv):
         On the CPU, asking whether any env ended is free, and most steps none does: the reset
         path (the task's draws, masked writes) is skipped then. On a GPU the question would
         wait for the device and break the step's CUDA graph: the masked reset always runs."""
-        if self._skip_idle_resets and not mask.any():
+        if self._skip_idle_resets and not self.rng.draw_only_for(mask):
             return False
-        self.sim.reset_to_defaults(mask)
-        if self._skip_idle_resets:
-            self.rng.draw_only_for(mask)
         try:
+            self.sim.reset_to_defaults(mask)
             self.task.reset(mask, self.rng)
         finally:
             self.rng.draw_only_for(None)
@@ -423,6 +417,16 @@ class LabVecEnv(gym.vector.VectorEnv):
     def observations(self) -> torch.Tensor:
         """The current observations: what the last step or reset returned."""
         return self.task.observations().to(torch.float32).nan_to_num(0.0, 0.0, 0.0)
+
+
+def checked_actions(actions: Any, shape: Sequence[int], device: torch.device) -> torch.Tensor:
+    """`actions` as a float32 tensor on `device`; a LabError unless they are `[envs, actions]`."""
+    actions = torch.as_tensor(actions, device=device, dtype=torch.float32)
+    if actions.shape != tuple(shape):
+        n, k = shape
+        raise LabError(f"actions of shape {tuple(actions.shape)} for an env of {n} envs with "
+                       f"{k} actions each", f"pass a [{n}, {k}] tensor")
+    return actions
 
 
 def _rebuilt(spec: TaskSpec, cfg: TaskConfig, backend: str, device: str,

@@ -38,19 +38,23 @@ class EnvRandom:
         self._equal = len({r.stop - r.start for r in self._rows}) == 1
         self._drawing = [True] * len(self.blocks)
 
-    def draw_only_for(self, mask: torch.Tensor | None) -> None:
+    def draw_only_for(self, mask: torch.Tensor | None) -> bool:
         """Until called with None, draws leave out (and their generators keep) the blocks with
         no env in `mask`: what a block draws for a reset then depends on its own envs only, not
-        on whether others, in its batch or not, reset in the same step. On the CPU (it reads the
-        mask on the host)."""
+        on whether others, in its batch or not, reset in the same step. Whether any env is in
+        `mask`; if none, nothing changes. On the CPU (it reads the mask on the host)."""
         if mask is None:
             self._drawing = [True] * len(self.blocks)
-            return
+            return True
         if self._equal:  # one op, not a cumulative sum: this runs on most steps
-            self._drawing = mask.view(len(self._rows), -1).any(dim=1).tolist()
-            return
-        ended = mask.cumsum(0)[self._ends - 1]
-        self._drawing = torch.diff(ended, prepend=ended.new_zeros(1)).gt(0).tolist()
+            drawing = mask.view(len(self._rows), -1).any(dim=1).tolist()
+        else:
+            ended = mask.cumsum(0)[self._ends - 1]
+            drawing = torch.diff(ended, prepend=ended.new_zeros(1)).gt(0).tolist()
+        if not any(drawing):
+            return False
+        self._drawing = drawing
+        return True
 
     def manual_seed(self, seed: int) -> None:
         for block, generator in zip(self.blocks, self.generators, strict=True):

@@ -30,7 +30,7 @@ from gymnasium.vector import AutoresetMode
 
 from labcli.envs.config import TaskConfig
 from labcli.envs.cores import cores
-from labcli.envs.env import EPISODE, LabVecEnv, Reduce, _autoreset_mode
+from labcli.envs.env import EPISODE, LabVecEnv, Reduce, _autoreset_mode, checked_actions
 from labcli.envs.random import BLOCKS, EnvRandom, block_bounds
 from labcli.envs.spec import TaskSpec
 from labcli.errors import LabError, first_line
@@ -41,7 +41,6 @@ MIN_SHARD_ENVS = 64
 # How long a waiting process polls before it sleeps: a step's gap is shorter than a sleep's
 # wake-up on a VM, a learner's update (the workers' wait) longer.
 SPIN_S = 0.002
-START_TIMEOUT_S = 300.0
 
 
 def shard_count(num_envs: int, threads: int | None) -> int:
@@ -122,11 +121,8 @@ def _serve(spec: TaskSpec, cfg: TaskConfig, seed: int, mode: AutoresetMode, shar
     conn.send(("ok", None))
     handlers = _Handlers(env, buffers, shard)
     while True:
-        deadline = time.perf_counter() + SPIN_S
-        while not go.acquire(False):
-            if time.perf_counter() > deadline:
-                go.acquire()
-                break
+        if not _spin_acquire(go):
+            go.acquire()
         if not conn.poll():
             try:
                 _step_into(env, buffers, shard, index)
@@ -142,6 +138,15 @@ def _serve(spec: TaskSpec, cfg: TaskConfig, seed: int, mode: AutoresetMode, shar
             conn.send(("ok", getattr(handlers, command)(*args)))
         except Exception as exc:
             conn.send(("error", _report(exc)))
+
+
+def _spin_acquire(semaphore: Any) -> bool:
+    """Take `semaphore` if it is released within `SPIN_S`, polling; False if not (then block)."""
+    deadline = time.perf_counter() + SPIN_S
+    while not semaphore.acquire(False):
+        if time.perf_counter() > deadline:
+            return False
+    return True
 
 
 def _report(exc: BaseException) -> str:
@@ -200,18 +205,10 @@ class _Worker:
             raise LabError(f"env shard {self.index} (a worker process): {value.splitlines()[0]}")
         return value
 
-    def call(self, command: str, *args: Any) -> Any:
-        self.conn.send((command, args))
-        self.go.release()
-        return self.answer()
-
     def wait(self) -> None:
-        deadline = time.perf_counter() + SPIN_S
-        while not self.done.acquire(False):
-            if time.perf_counter() > deadline:
-                while not self.done.acquire(timeout=0.1):
-                    self._check_alive()
-                break
+        if not _spin_acquire(self.done):
+            while not self.done.acquire(timeout=0.1):
+                self._check_alive()
         if self.conn.poll():  # a step raised: its error came first
             self.answer()
 
@@ -326,12 +323,8 @@ class ShardedVecEnv(gym.vector.VectorEnv):
         return self._buffers["obs"].clone(), {}
 
     def step(self, actions: torch.Tensor):
-        actions = torch.as_tensor(actions, dtype=torch.float32)
-        if actions.shape != self.action_space.shape:
-            raise LabError(f"actions of shape {tuple(actions.shape)} for an env of "
-                           f"{self.num_envs} envs with {len(self.action_names)} actions each",
-                           f"pass a [{self.num_envs}, {len(self.action_names)}] tensor")
         b = self._buffers
+        actions = checked_actions(actions, b["actions"].shape, self.device)
         b["actions"].copy_(actions)
         for worker in self._workers:
             worker.go.release()
