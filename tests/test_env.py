@@ -509,6 +509,45 @@ def test_a_state_mujoco_rejects_counts_as_unstable(make_env, pole_vel):
     assert_only_env_0_unstable(env, obs, reward, terminated, info)
 
 
+@pytest.mark.parametrize("mode", ["same_step", "next_step"])
+def test_the_cpus_shortcuts_change_no_output(tmp_path, monkeypatch, mode):
+    """On the CPU a step skips masking and episode figures where no env ended, diverged or got
+    a non-finite action: the same run with all of it done on every step, as on a GPU, gives the
+    same outputs and figures, bit for bit."""
+    monkeypatch.chdir(tmp_path)  # MuJoCo's warnings file
+    spec = registry.get_task("cartpole")
+    envs = [LabVecEnv(spec, spec.config_class(num_envs=64), backend="cpu", seed=3,
+                      autoreset_mode=mode) for _ in range(2)]
+    fast, full = envs
+    full._shortcuts = False
+    try:
+        for env in envs:
+            env.reset(seed=3)
+        for step, actions in enumerate(random_actions(300, n=64, seed=4)):
+            if step == 50:
+                actions[5, 0] = float("nan")
+            if step == 120:  # finite, but their sum is not: none of them is bad
+                actions.fill_(3e38)
+            if step == 80:
+                for env in envs:
+                    env.sim.qvel[7, CART] = 2e6
+            outs = [env.step(actions.clone()) for env in envs]
+            for a, b in zip(*outs, strict=True):
+                if isinstance(a, dict):
+                    assert a.keys() == b.keys()
+                    a, b = (torch.cat([v.reshape(64, -1).double() for v in (
+                        *x.pop("lab_episode").values(), *x.values())], 1) for x in (a, b))
+                assert torch.equal(a, b), f"step {step}"
+            if step == 120:
+                assert not outs[0][4]["terminations"][:, -1].any()
+            if step % 50 == 49:
+                assert fast.pop_stats() == full.pop_stats()
+        assert fast.pop_stats() == full.pop_stats()
+    finally:
+        for env in envs:
+            env.close()
+
+
 # Configuration errors --------------------------------------------------------------------------
 @pytest.mark.parametrize("weights", [
     {t: 1.0 for t in TERMS if t != "pole_vel"},  # a computed term left unweighted

@@ -116,7 +116,12 @@ class LabVecEnv(gym.vector.VectorEnv):
         self._all = torch.ones(n, dtype=torch.bool, device=dev)
         # NEXT_STEP: the envs that ended on the last step, to be reset on this one.
         self._pending = torch.zeros(n, dtype=torch.bool, device=dev)
-        self._skip_idle_resets = dev.type == "cpu"
+        self._none = torch.zeros(n, dtype=torch.bool, device=dev)  # read only
+        # On the CPU a tensor reads on the host for free, and on most steps no env ends,
+        # diverges or gets a non-finite action: the step asks, and skips the work that would
+        # change nothing then (resets, episode figures, masking). On a GPU asking would wait for
+        # the device and break the step's CUDA graph: that work always runs there.
+        self._skip_idle_resets = self._shortcuts = dev.type == "cpu"
         self._renderer: SceneRenderer | None = None
         self._resume_state: dict[str, torch.Tensor] | None = None
         # On a GPU the step is host-bound when eager: it replays as one CUDA graph instead.
@@ -178,18 +183,17 @@ class LabVecEnv(gym.vector.VectorEnv):
     def _step(self, actions: torch.Tensor):
         """The MDP of one env step, as torch operations only (no host syncs, fixed shapes), so
         that on a GPU it replays as a CUDA graph."""
-        safe = actions.nan_to_num(0.0)
-        # nan_to_num changed exactly the non-finite entries (NaN equals nothing, inf != max).
-        bad_action = safe.ne(actions).any(dim=1)
-        self.task.apply_actions(safe.clamp_(-self.clip_actions, self.clip_actions))
+        safe, bad_action = self._safe_actions(actions)
+        self.task.apply_actions(safe)
         self.sim.step(self.cfg.decimation)
         self.task.update()
         self.episode_length += 1
 
         causes = self.task.terminations()
-        unstable = self.sim.unstable() | bad_action
+        unstable = self._unstable(bad_action)
         # A row per cause ([cause, env]): rows stack and reduce faster than short columns.
-        terminated = torch.stack([*causes.values(), unstable])
+        terminated = torch.stack([*causes.values(),
+                                  self._none if unstable is None else unstable])
         reward = self._reward(unstable)
 
         next_step = self.autoreset_mode is AutoresetMode.NEXT_STEP
@@ -198,7 +202,8 @@ class LabVecEnv(gym.vector.VectorEnv):
             # figures of this step do not count.
             live = self._pending.logical_not()
             terminated.logical_and_(live)
-            bad_action.logical_and_(live)
+            if bad_action is not None:
+                bad_action.logical_and_(live)
             reward.masked_fill_(self._pending, 0.0)
         terminated_any = terminated.any(dim=0)
         done = terminated_any | (self.episode_length >= self.max_episode_length)
@@ -206,10 +211,12 @@ class LabVecEnv(gym.vector.VectorEnv):
             done.logical_and_(live)
         truncated = done ^ terminated_any  # timed out and not terminated
         self.task.after_step()
-        success = self.task.success(truncated) & truncated
+        ended = not self._shortcuts or bool(done.any())
+        success = self.task.success(truncated) & truncated if ended else done.clone()
         episode = {"r": self.episode_return.clone(), "l": self.episode_length.clone(),
                    "success": success}
-        self._accumulate(done, success, terminated, bad_action)
+        if ended:
+            self._accumulate(done, success, terminated, bad_action)
         info = {EPISODE: episode, f"_{EPISODE}": done, "terminations": terminated.t()}
         if next_step:
             self._reset_envs(self._pending)
@@ -218,8 +225,24 @@ class LabVecEnv(gym.vector.VectorEnv):
         final_obs = info["final_obs"] = self.observations()
         info["_final_obs"] = done
         # With no env reset the state is unchanged: a copy, not the task's terms again.
-        obs = self.observations() if self._reset_envs(done) else final_obs.clone()
+        obs = self.observations() if ended and self._reset_envs(done) else final_obs.clone()
         return obs, reward, terminated_any, truncated, info
+
+    def _safe_actions(self, actions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """The actions clipped, non-finite ones as 0; and the envs that had one (None: none)."""
+        if self._shortcuts and math.isfinite(actions.sum()):  # a sum is finite or it is not
+            return actions.clamp(-self.clip_actions, self.clip_actions), None
+        safe = actions.nan_to_num(0.0)
+        # nan_to_num changed exactly the non-finite entries (NaN equals nothing, inf != max).
+        bad_action = safe.ne(actions).any(dim=1)
+        return safe.clamp_(-self.clip_actions, self.clip_actions), bad_action
+
+    def _unstable(self, bad_action: torch.Tensor | None) -> torch.Tensor | None:
+        """The envs whose state diverged or whose action was not finite (None: none)."""
+        if self._shortcuts and not self.sim.any_unstable():
+            return bad_action
+        unstable = self.sim.unstable()
+        return unstable if bad_action is None else unstable | bad_action
 
     # looking at env 0 ------------------------------------------------------------------------
     def render(self) -> np.ndarray:
@@ -322,12 +345,13 @@ class LabVecEnv(gym.vector.VectorEnv):
 
     # statistics ------------------------------------------------------------------------------
     def _accumulate(self, done: torch.Tensor, success: torch.Tensor, terminated: torch.Tensor,
-                    bad_action: torch.Tensor) -> None:
+                    bad_action: torch.Tensor | None) -> None:
         """Add the ended episodes' figures to the running sums: each figure is copied into its
         rows of one float64 matrix (no stack or cat of mixed dtypes), which are summed over the
         envs weighted by `done` in one matrix-vector product, not an op per figure. A non-finite
         action always ends its episode, so `done` weights count those too."""
-        figures = (done, self._episode_sums, self.episode_length, success, terminated, bad_action)
+        figures = (done, self._episode_sums, self.episode_length, success, terminated,
+                   self._none if bad_action is None else bad_action)
         if self.metric_names:
             figures += (torch.stack(list(self.task.episode_metrics().values())),)
         for rows, figure in zip(self._ended_figures, figures, strict=True):
@@ -396,16 +420,17 @@ class LabVecEnv(gym.vector.VectorEnv):
         self.task.update()
         self.episode_length.masked_fill_(mask, 0)
         self._episode_sums.masked_fill_(mask, 0.0)
-        # Last: `mask` may be `_pending` itself.
-        self._pending.logical_and_(mask.logical_not())
+        if self.autoreset_mode is AutoresetMode.NEXT_STEP:  # else none is ever pending
+            # Last: `mask` may be `_pending` itself.
+            self._pending.logical_and_(mask.logical_not())
         return True
 
-    def _reward(self, unstable: torch.Tensor) -> torch.Tensor:
+    def _reward(self, unstable: torch.Tensor | None) -> torch.Tensor:
         """The weighted terms' sum; each weighted term also adds to its episode's total."""
         terms = self.task.reward_terms()
         rows = torch.stack([terms[name] for name in self.reward_names])  # contiguous copies
-        # A diverged env's state is garbage: it earns nothing on its last step.
-        rows.masked_fill_(unstable, 0.0)
+        if unstable is not None:  # a diverged env's state is garbage: it earns nothing
+            rows.masked_fill_(unstable, 0.0)
         # Cast and transposed in one copy: half the cost of stacking columns of another dtype.
         weighted = self._weighted.copy_(rows.t())
         weighted.mul_(self._weights).nan_to_num_(0.0, 0.0, 0.0)

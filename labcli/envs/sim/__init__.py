@@ -47,6 +47,10 @@ class Sim:
         # NaN, which is not below the limit) at 0.3-0.4 of the cost with 14-29 velocities.
         return ~(self.qvel.abs().amax(dim=1) < UNSTABLE_VELOCITY)
 
+    def any_unstable(self) -> bool:
+        """Whether `unstable()` flags any env, read on the host (on a GPU, a wait for it)."""
+        return bool(self.unstable().any())
+
     def model_field(self, name: str) -> torch.Tensor:
         """`[num_envs, ...]` values of an MjModel field that differs per env (friction, mass),
         one of the `per_env_fields` the sim was made with. Write into it in place, then call

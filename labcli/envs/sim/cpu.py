@@ -4,6 +4,7 @@ calling thread and one worker thread, each its share of them; on more, MuJoCo's 
 from __future__ import annotations
 
 import copy
+import math
 import threading
 import time
 import weakref
@@ -15,7 +16,7 @@ import torch
 from mujoco import rollout
 
 from labcli.envs.cores import cores
-from labcli.envs.sim import Sim
+from labcli.envs.sim import UNSTABLE_VELOCITY, Sim
 
 FULL = mujoco.mjtState.mjSTATE_FULLPHYSICS
 
@@ -201,6 +202,10 @@ class CpuSim(Sim):
         torch.where(mask[:, None], self._default_t, self._state_t, out=self._state_t)
         if self.model.nsensordata:
             self.sensordata.masked_fill_(mask[:, None], 0.0)
+
+    def any_unstable(self) -> bool:
+        # One reduction over all envs, not a row each: the largest speed (NaN if any is NaN).
+        return not float(torch.linalg.vector_norm(self.qvel, ord=math.inf)) < UNSTABLE_VELOCITY
 
     def model_field(self, name: str) -> torch.Tensor:
         if name not in self._fields:
