@@ -4,11 +4,13 @@ their number, and state that moves between sharded and unsharded envs."""
 from __future__ import annotations
 
 import copy
+import dataclasses
 import os
 import signal
 
 import pytest
 import torch
+from lab_cartpole.cartpole import Cartpole
 
 from labcli.envs import metrics
 from labcli.envs import shards as shards_module
@@ -127,6 +129,33 @@ def test_a_worker_that_dies_is_one_line_not_a_hang(sharded):
     worker.join()
     with pytest.raises(LabError, match="env shard 1's worker process ended"):
         sharded.step(torch.zeros(128, 1))
+
+
+class FailsInAWorker(Cartpole):
+    """Cartpole whose third step fails in every shard but the first (a worker's)."""
+
+    steps = 0
+
+    def after_step(self) -> None:
+        self.steps += 1
+        if self.steps == 3 and self.rng.blocks[0] > 0:
+            raise ValueError("the third step failed")
+
+
+def test_a_step_that_fails_in_a_worker_is_one_line_and_the_next_step_goes_on():
+    spec = dataclasses.replace(registry.get_task("cartpole"), task=FailsInAWorker)
+    env = ShardedVecEnv(spec, spec.config_class(num_envs=128), seed=0, shards=2)
+    try:
+        env.reset(seed=0)
+        for _ in range(2):
+            env.step(torch.zeros(128, 1))
+        with pytest.raises(LabError, match="^env shard 1 \\(a worker process\\): the third"):
+            env.step(torch.zeros(128, 1))
+        obs, *_ = env.step(torch.zeros(128, 1))  # the worker answers this step, not the last
+        assert torch.equal(env.get_state()["episode_length"], torch.full((128,), 4))
+        assert torch.isfinite(obs).all()
+    finally:
+        env.close()
 
 
 @pytest.mark.parametrize("total, block", [(64, 4), (100, 6)])  # blocks of 6 and 7 envs
