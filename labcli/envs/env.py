@@ -120,7 +120,9 @@ class LabVecEnv(gym.vector.VectorEnv):
         # On the CPU a tensor reads on the host for free, and on most steps no env ends,
         # diverges or gets a non-finite action: the step asks, and skips the work that would
         # change nothing then (resets, episode figures, masking). On a GPU asking would wait for
-        # the device and break the step's CUDA graph: that work always runs there.
+        # the device and break the step's CUDA graph: that work always runs there. Skipping an
+        # idle reset also decides which blocks draw (`EnvRandom.draw_only_for`); the shortcuts
+        # change no output.
         self._skip_idle_resets = self._shortcuts = dev.type == "cpu"
         self._renderer: SceneRenderer | None = None
         self._resume_state: dict[str, torch.Tensor] | None = None

@@ -166,9 +166,9 @@ class _ShardEnd:
         rows = slice(shard.first, shard.stop)
         self.env, self.stats = env, buffers["stats"][index]
         # Views made once: slicing each buffer on every step costs as much as copying into it.
-        self.actions, self.obs = buffers["actions"][rows], buffers["obs"][rows]
+        self.actions, self.final_obs = buffers["actions"][rows], buffers["final_obs"][rows]
         self.outputs = [buffers[name][rows] for name in _STEP_OUTPUTS]
-        self.final_obs = buffers["final_obs"][rows]
+        self.obs = self.outputs[_STEP_OUTPUTS.index("obs")]
 
     @torch.inference_mode()
     def step(self) -> None:
