@@ -7,6 +7,7 @@ import copy
 import dataclasses
 import os
 import signal
+import time
 
 import pytest
 import torch
@@ -18,6 +19,7 @@ from labcli.envs.env import EPISODE, LabVecEnv
 from labcli.envs.make import make_env
 from labcli.envs.random import EnvRandom
 from labcli.envs.shards import ShardedVecEnv, shard_count
+from labcli.envs.sim.chunks import ChunkStepper
 from labcli.errors import LabError
 from labcli.plugins import registry
 
@@ -64,12 +66,38 @@ def test_shards_give_the_outputs_of_one_env(task, num_envs, mode, steps, cfg):
     for count in (2, 4):
         env = ShardedVecEnv(spec, cfg, seed=0, autoreset_mode=mode, shards=count)
         try:
+            # go1-flat varies masses per env: each shard steps its own physics, no chunk board.
+            assert (env._board is None) == bool(spec.task_class.per_env_fields(cfg))
             assert_same(trajectory(env, steps), expected)
             # Summed per shard, then over shards: the last bits may round differently.
             assert env.pop_stats() == pytest.approx(expected_stats, rel=1e-12)
         finally:
             env.close()
     assert expected_stats[metrics.EPISODES] > 0  # envs ended and reset, in every shard's rows
+
+
+def test_workers_step_a_slow_shards_physics_and_the_outputs_stay_one_envs(monkeypatch):
+    """The caller's shard steps its chunks slowly (here only: workers are other processes), so
+    the workers take its untaken chunks; every output is still one process's."""
+    spec = registry.get_task("cartpole")
+    cfg = spec.config_class(num_envs=256)
+    one = LabVecEnv(spec, cfg, backend="cpu", seed=0)
+    expected = trajectory(one, 60)
+    one.close()
+    roll = ChunkStepper._roll
+
+    def slow_roll(self, shard, chunk):
+        time.sleep(0.003)
+        roll(self, shard, chunk)
+
+    monkeypatch.setattr(ChunkStepper, "_roll", slow_roll)
+    env = ShardedVecEnv(spec, cfg, seed=0, shards=2)
+    try:
+        assert_same(trajectory(env, 60), expected)
+        stolen = env._board.stolen
+        assert stolen[1, 0] > 0 and stolen[0].sum() == 0  # the caller takes no chunk
+    finally:
+        env.close()
 
 
 @pytest.fixture

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import gymnasium as gym
 import mujoco
@@ -21,6 +21,9 @@ from labcli.envs.render.scene import SceneRenderer
 from labcli.envs.sim import default_backend, make_sim
 from labcli.envs.spec import TaskSpec
 from labcli.errors import LabError, first_line
+
+if TYPE_CHECKING:
+    from labcli.envs.sim.chunks import ShardPhysics
 
 UNSTABLE = "unstable"
 
@@ -45,9 +48,10 @@ class LabVecEnv(gym.vector.VectorEnv):
     def __init__(self, spec: TaskSpec, cfg: TaskConfig, *, backend: str | None = None,
                  device: str = "cpu", seed: int = 0,
                  autoreset_mode: AutoresetMode | str = AutoresetMode.SAME_STEP,
-                 shard: tuple[int, int] | None = None):
+                 shard: tuple[int, int] | None = None, physics: ShardPhysics | None = None):
         """`shard=(first, total)`: these `cfg.num_envs` envs are envs `[first, first + num_envs)`
-        of `total` (the cpu backend's env shards; they draw as those envs of one env would)."""
+        of `total` (the cpu backend's env shards; they draw as those envs of one env would);
+        `physics`: where and how such a shard's physics steps (`labcli.envs.sim.chunks`)."""
         self.autoreset_mode = _autoreset_mode(autoreset_mode)
         self.metadata = {**self.metadata, "autoreset_mode": self.autoreset_mode}
         self.task_spec = spec
@@ -62,7 +66,7 @@ class LabVecEnv(gym.vector.VectorEnv):
         self.max_episode_length = math.ceil(round(steps, 9))
         self.backend = backend or default_backend(device)
         self.sim = make_sim(self.backend, model, cfg.num_envs, device, cfg.threads, cfg.nconmax,
-                            cfg.njmax, spec.task_class.per_env_fields(cfg))
+                            cfg.njmax, spec.task_class.per_env_fields(cfg), physics)
         self.task = spec.task_class(cfg, self.sim)
         self.num_envs = cfg.num_envs
         self.device = self.sim.device

@@ -32,6 +32,7 @@ from labcli.envs.config import TaskConfig
 from labcli.envs.cores import cores
 from labcli.envs.env import EPISODE, LabVecEnv, Reduce, _autoreset_mode, checked_actions
 from labcli.envs.random import BLOCKS, EnvRandom, block_bounds
+from labcli.envs.sim.chunks import ChunkBoard, ShardPhysics
 from labcli.envs.spec import TaskSpec
 from labcli.errors import LabError, first_line
 
@@ -102,14 +103,15 @@ def _buffers(env: LabVecEnv, num_envs: int, count: int) -> dict[str, torch.Tenso
 
 
 def _serve(spec: TaskSpec, cfg: TaskConfig, seed: int, mode: AutoresetMode, shard: _Shard,
-           total: int, index: int, buffers: dict[str, torch.Tensor], go: Any, done: Any,
-           conn: Any) -> None:
+           total: int, index: int, buffers: dict[str, torch.Tensor], board: ChunkBoard | None,
+           go: Any, done: Any, conn: Any) -> None:
     """A worker process: build its shard, then serve steps and commands until told to close."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the caller's: it stops in order
     torch.set_num_threads(1)
     try:
         env = LabVecEnv(spec, cfg, backend="cpu", seed=seed, autoreset_mode=mode,
-                        shard=(shard.first, total))
+                        shard=(shard.first, total),
+                        physics=board and ShardPhysics(board, index, steals=True))
     except Exception as exc:  # reported by the caller as one line
         conn.send(("error", first_line(exc)))
         return
@@ -232,24 +234,28 @@ class _Worker:
     def answer(self) -> Any:
         """The worker's reply to the last command; its error as a LabError."""
         while not self.conn.poll(0.1):
-            self._check_alive()
+            _check_alive([self])
         kind, value = self.conn.recv()
         if kind == "error":
             raise LabError(f"env shard {self.index} (a worker process): {value.splitlines()[0]}")
         return value
 
-    def wait(self) -> None:
+    def wait(self, workers: list[_Worker]) -> None:
+        """Until the worker's step is done; a LabError if it failed or a worker is gone (each
+        may be stepping chunks of this one's physics)."""
         if not _spin_acquire(self.done):
             while not self.done.acquire(timeout=0.1):
-                self._check_alive()
+                _check_alive(workers)
         if self.flags[FAILED]:  # a step raised: its error is in the pipe
             self.flags[FAILED] = 0
             self.answer()
 
-    def _check_alive(self) -> None:
-        if not self.process.is_alive():
-            raise LabError(f"env shard {self.index}'s worker process ended (exit code "
-                           f"{self.process.exitcode})", "see the lines above it for why")
+
+def _check_alive(workers: list[_Worker]) -> None:
+    for worker in workers:
+        if not worker.process.is_alive():
+            raise LabError(f"env shard {worker.index}'s worker process ended (exit code "
+                           f"{worker.process.exitcode})", "see the lines above it for why")
 
 
 @contextlib.contextmanager
@@ -305,9 +311,20 @@ class ShardedVecEnv(gym.vector.VectorEnv):
             return cfg.model_copy(update={"num_envs": shard.stop - shard.first, "threads": 1})
 
         first = self._shards[0]
+        ctx = mp.get_context("spawn")
+        self._workers: list[_Worker] = []
+        # With a model per env (fields that vary per env), another shard's process cannot step
+        # an env: each shard steps its own physics.
+        board = None if spec.task_class.per_env_fields(cfg) else ChunkBoard(
+            ctx, spec.task_class.build_model(cfg, spec.model),
+            [(shard.first, shard.stop) for shard in self._shards], cfg.decimation)
+        workers = self._workers
         # Shard 0 first, here: a config the task refuses fails before any process starts.
-        self._local = LabVecEnv(spec, shard_cfg(first), backend="cpu", seed=seed,
-                                autoreset_mode=self.autoreset_mode, shard=(0, n))
+        self._local = LabVecEnv(
+            spec, shard_cfg(first), backend="cpu", seed=seed, autoreset_mode=self.autoreset_mode,
+            shard=(0, n), physics=board and ShardPhysics(
+                board, 0, steals=False, check=lambda: _check_alive(workers)))
+        self._board = board
         local = self._local
         for name in ("metadata", "step_dt", "max_episode_length", "observation_names",
                      "action_names", "single_observation_space", "single_action_space",
@@ -321,14 +338,12 @@ class ShardedVecEnv(gym.vector.VectorEnv):
         self._resume_state: dict[str, torch.Tensor] | None = None
         self._buffers = _buffers(local, n, len(self._shards))
         self._local_end = _ShardEnd(local, self._buffers, first, 0)
-        ctx = mp.get_context("spawn")
-        self._workers: list[_Worker] = []
         self._stop_workers = weakref.finalize(self, _stop, self._workers)
         try:
             for i, shard in enumerate(self._shards[1:], start=1):
                 self._workers.append(_Worker(ctx, (spec, shard_cfg(shard), seed,
                                                    self.autoreset_mode, shard, n, i,
-                                                   self._buffers), i,
+                                                   self._buffers, board), i,
                                              self._buffers["flags"].numpy()[i]))
             for worker in self._workers:
                 worker.answer()
@@ -371,7 +386,7 @@ class ShardedVecEnv(gym.vector.VectorEnv):
         for worker in self._workers:
             while True:
                 try:
-                    worker.wait()
+                    worker.wait(self._workers)
                 except KeyboardInterrupt as exc:  # wait on: the worker is still stepping
                     failure = failure or exc
                     continue

@@ -4,11 +4,15 @@ from __future__ import annotations
 
 import importlib.util
 from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
 import mujoco
 import torch
 
 from labcli.errors import LabError
+
+if TYPE_CHECKING:
+    from labcli.envs.sim.chunks import ShardPhysics
 
 BACKENDS = ("cpu", "warp")
 # A velocity this large (or NaN) means the integrator diverged; such envs are reset.
@@ -84,14 +88,16 @@ def _warp_installed() -> bool:
 
 def make_sim(backend: str, model: mujoco.MjModel, num_envs: int, device: str,
              nthread: int | None = None, nconmax: int | None = None,
-             njmax: int | None = None, per_env_fields: Sequence[str] = ()) -> Sim:
+             njmax: int | None = None, per_env_fields: Sequence[str] = (),
+             shard: ShardPhysics | None = None) -> Sim:
+    """`shard`: the cpu backend's env shard that this sim steps (`labcli.envs.shards`)."""
     if backend == "cpu":
         from labcli.envs.sim.cpu import CpuSim
 
         if torch.device(device).type != "cpu":
             raise LabError(f"the cpu backend keeps its state on the CPU, not on '{device}'",
                            "use --device cpu, or --backend warp for a GPU")
-        return CpuSim(model, num_envs, nthread, per_env_fields)
+        return CpuSim(model, num_envs, nthread, per_env_fields, shard)
     if backend == "warp":
         return _make_warp_sim(model, num_envs, device, nconmax, njmax, per_env_fields)
     raise LabError(f"unknown backend '{backend}'", f"choose one of: {', '.join(BACKENDS)}")

@@ -17,6 +17,7 @@ from mujoco import rollout
 
 from labcli.envs.cores import cores
 from labcli.envs.sim import UNSTABLE_VELOCITY, Sim
+from labcli.envs.sim.chunks import ChunkStepper, ShardPhysics
 
 FULL = mujoco.mjtState.mjSTATE_FULLPHYSICS
 
@@ -96,7 +97,9 @@ class CpuSim(Sim):
     was 3–15% faster at 1,024 and 4,096 envs; at 4 and 8 threads mixed, 0.85–1.23 of it)."""
 
     def __init__(self, model: mujoco.MjModel, num_envs: int, nthread: int | None = None,
-                 per_env_fields: Sequence[str] = ()):
+                 per_env_fields: Sequence[str] = (), shard: ShardPhysics | None = None):
+        """`shard`: this sim is an env shard's, its physics arrays rows of `shard.board`'s and
+        stepped in chunks (`labcli.envs.sim.chunks`); on one thread."""
         # MuJoCo's own reset of a diverged state would hide it from `Sim.unstable()`: lab resets
         # such envs itself, and counts them. On a copy: the caller's model may also go to MuJoCo
         # Warp, which has no such reset and refuses the flag.
@@ -133,10 +136,20 @@ class CpuSim(Sim):
         nstate = mujoco.mj_stateSize(model, FULL)
         self._default = np.empty(nstate)
         mujoco.mj_getState(model, data, self._default, FULL)
-        self._state = np.tile(self._default, (num_envs, 1))
+        self._chunks: ChunkStepper | None = None
+        if shard is None:
+            self._state = np.empty((num_envs, nstate))
+            self._out: np.ndarray | None = None
+        else:
+            rows = shard.board.rows(shard.shard)
+            self._state = shard.board.state.numpy()[rows]
+            self._out = shard.board.out.numpy()[rows]
+            self._ctrl_steps = shard.board.controls.numpy()[rows]
+            self._sensors = shard.board.sensors.numpy()[rows]
+            self._chunks = ChunkStepper(shard, model)
+        self._state[:] = self._default
         self._ctrl = np.zeros((num_envs, model.nu))
         self._sensordata = np.zeros((num_envs, model.nsensordata))
-        self._out: np.ndarray | None = None
 
         # torch views of the numpy arrays, sharing their memory: MuJoCo and torch see one state.
         self._state_t = torch.from_numpy(self._state)
@@ -147,6 +160,9 @@ class CpuSim(Sim):
         self.sensordata = torch.from_numpy(self._sensordata)
 
     def step(self, nstep: int) -> None:
+        if self._chunks is not None and nstep != self._chunks.board.nstep:
+            raise ValueError(f"an env shard's sim steps {self._chunks.board.nstep} physics "
+                             f"steps at a time, not {nstep}")
         if self._out is None or self._out.shape[1] != nstep:
             n = self.num_envs
             self._out = np.empty((n, nstep, self._state.shape[1]))
@@ -155,7 +171,9 @@ class CpuSim(Sim):
         # Zero-order hold: the same ctrl for every physics substep.
         self._ctrl_steps[:] = self._ctrl[:, None, :]
         split = self._split
-        if self._worker is None:
+        if self._chunks is not None:
+            self._chunks.step()
+        elif self._worker is None:
             self._roll(self._mine, self._my_data, 0, split, nstep)
         else:
             self._worker.start(lambda: self._roll(self._theirs, self._their_data, split,
@@ -221,6 +239,6 @@ class CpuSim(Sim):
         if self._stop_worker is not None:
             self._stop_worker()  # a finalizer runs once: closing twice is harmless
         self._worker = None  # a step after close then fails in the closed rollout, not hangs
-        for runner in (self._mine, self._theirs):
+        for runner in (self._mine, self._theirs, self._chunks):
             if runner is not None:
                 runner.close()
