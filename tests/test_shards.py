@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import multiprocessing
 import os
 import signal
 import time
@@ -19,7 +20,7 @@ from labcli.envs.env import EPISODE, LabVecEnv
 from labcli.envs.make import make_env
 from labcli.envs.random import EnvRandom
 from labcli.envs.shards import ShardedVecEnv, shard_count
-from labcli.envs.sim.chunks import ChunkStepper
+from labcli.envs.sim.chunks import ChunkBoard, ChunkStepper, ShardPhysics
 from labcli.errors import LabError
 from labcli.plugins import registry
 
@@ -66,8 +67,6 @@ def test_shards_give_the_outputs_of_one_env(task, num_envs, mode, steps, cfg):
     for count in (2, 4):
         env = ShardedVecEnv(spec, cfg, seed=0, autoreset_mode=mode, shards=count)
         try:
-            # go1-flat varies masses per env: each shard steps its own physics, no chunk board.
-            assert (env._board is None) == bool(spec.task_class.per_env_fields(cfg))
             assert_same(trajectory(env, steps), expected)
             # Summed per shard, then over shards: the last bits may round differently.
             assert env.pop_stats() == pytest.approx(expected_stats, rel=1e-12)
@@ -76,28 +75,92 @@ def test_shards_give_the_outputs_of_one_env(task, num_envs, mode, steps, cfg):
     assert expected_stats[metrics.EPISODES] > 0  # envs ended and reset, in every shard's rows
 
 
-def test_workers_step_a_slow_shards_physics_and_the_outputs_stay_one_envs(monkeypatch):
+@pytest.mark.parametrize("task, num_envs, steps, cfg", [
+    ("cartpole", 256, 60, {}),
+    # Masses and centres of mass drawn per env: a worker steps the caller's envs on its own
+    # models with their values.
+    ("go1-flat", 64, 30, {"episode_length_s": 0.3}),
+])
+def test_workers_step_a_slow_shards_physics_and_the_outputs_stay_one_envs(
+        monkeypatch, task, num_envs, steps, cfg):
     """The caller's shard steps its chunks slowly (here only: workers are other processes), so
     the workers take its untaken chunks; every output is still one process's."""
-    spec = registry.get_task("cartpole")
-    cfg = spec.config_class(num_envs=256)
+    spec = registry.get_task(task)
+    cfg = spec.config_class(num_envs=num_envs, **cfg)
     one = LabVecEnv(spec, cfg, backend="cpu", seed=0)
-    expected = trajectory(one, 60)
+    expected = trajectory(one, steps)
     one.close()
     roll = ChunkStepper._roll
 
     def slow_roll(self, shard, chunk):
-        time.sleep(0.003)
+        time.sleep(0.01)
         roll(self, shard, chunk)
 
     monkeypatch.setattr(ChunkStepper, "_roll", slow_roll)
     env = ShardedVecEnv(spec, cfg, seed=0, shards=2)
     try:
-        assert_same(trajectory(env, 60), expected)
+        assert_same(trajectory(env, steps), expected)
         stolen = env._board.stolen
         assert stolen[1, 0] > 0 and stolen[0].sum() == 0  # the caller takes no chunk
     finally:
         env.close()
+
+
+def test_ctrl_c_inside_the_callers_physics_leaves_no_chunk_behind(monkeypatch):
+    """Ctrl-C while the caller steps a chunk of its physics: the step raises it once every
+    worker is done, and the next steps neither hang nor count what the broken step left."""
+    spec = registry.get_task("cartpole")
+    env = ShardedVecEnv(spec, spec.config_class(num_envs=256), seed=0, shards=2)
+    roll, armed = ChunkStepper._roll, []
+
+    def interrupted_roll(self, shard, chunk):
+        if armed and armed.pop():  # the caller's first chunk after arming
+            raise KeyboardInterrupt
+        roll(self, shard, chunk)
+
+    monkeypatch.setattr(ChunkStepper, "_roll", interrupted_roll)
+    try:
+        env.reset(seed=0)
+        env.step(torch.zeros(256, 1))
+        armed.append(True)
+        with pytest.raises(KeyboardInterrupt):
+            env.step(torch.zeros(256, 1))
+        for _ in range(3):
+            obs, *_ = env.step(torch.zeros(256, 1))
+        lengths = env.get_state()["episode_length"]
+        assert (lengths[:128] == 4).all() and (lengths[128:] == 5).all()  # the caller lost one
+        assert torch.isfinite(obs).all()
+    finally:
+        env.close()
+
+
+def test_a_broken_step_leaves_no_chunk_open_nor_count_behind(monkeypatch):
+    """The board's protocol, in one process: after a step that Ctrl-C broke before it took its
+    chunks, no other process takes one, and a late count of a stolen chunk is not read as this
+    step's."""
+    spec = registry.get_task("cartpole")
+    model = spec.task_class.build_model(spec.config_class(), spec.model)
+    board = ChunkBoard(multiprocessing.get_context("spawn"), model, [(0, 64), (64, 128)], 2)
+    caller = ChunkStepper(ShardPhysics(board, 0, steals=False), model, [model] * 64)
+    worker = ChunkStepper(ShardPhysics(board, 1, steals=True), model, [model] * 64)
+    roll = ChunkStepper._roll
+
+    def interrupted_roll(self, shard, chunk):
+        if self is caller:
+            raise KeyboardInterrupt
+        roll(self, shard, chunk)
+
+    monkeypatch.setattr(ChunkStepper, "_roll", interrupted_roll)
+    with pytest.raises(KeyboardInterrupt):
+        caller.step()
+    worker.step()
+    assert board.stolen.sum() == 0  # the broken step's chunks were closed, not left to take
+    monkeypatch.setattr(ChunkStepper, "_roll", roll)
+    board.done[0].release()  # a thief's count that arrives after its step broke
+    caller.step()
+    assert not board.done[0].acquire(False)  # read at the start of the step, not as its own
+    for stepper in (caller, worker):
+        stepper.close()
 
 
 @pytest.fixture

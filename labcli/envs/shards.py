@@ -103,7 +103,7 @@ def _buffers(env: LabVecEnv, num_envs: int, count: int) -> dict[str, torch.Tenso
 
 
 def _serve(spec: TaskSpec, cfg: TaskConfig, seed: int, mode: AutoresetMode, shard: _Shard,
-           total: int, index: int, buffers: dict[str, torch.Tensor], board: ChunkBoard | None,
+           total: int, index: int, buffers: dict[str, torch.Tensor], board: ChunkBoard,
            go: Any, done: Any, conn: Any) -> None:
     """A worker process: build its shard, then serve steps and commands until told to close."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the caller's: it stops in order
@@ -111,7 +111,7 @@ def _serve(spec: TaskSpec, cfg: TaskConfig, seed: int, mode: AutoresetMode, shar
     try:
         env = LabVecEnv(spec, cfg, backend="cpu", seed=seed, autoreset_mode=mode,
                         shard=(shard.first, total),
-                        physics=board and ShardPhysics(board, index, steals=True))
+                        physics=ShardPhysics(board, index, steals=True))
     except Exception as exc:  # reported by the caller as one line
         conn.send(("error", first_line(exc)))
         return
@@ -313,17 +313,15 @@ class ShardedVecEnv(gym.vector.VectorEnv):
         first = self._shards[0]
         ctx = mp.get_context("spawn")
         self._workers: list[_Worker] = []
-        # With a model per env (fields that vary per env), another shard's process cannot step
-        # an env: each shard steps its own physics.
-        board = None if spec.task_class.per_env_fields(cfg) else ChunkBoard(
-            ctx, spec.task_class.build_model(cfg, spec.model),
-            [(shard.first, shard.stop) for shard in self._shards], cfg.decimation)
+        board = ChunkBoard(ctx, spec.task_class.build_model(cfg, spec.model),
+                           [(shard.first, shard.stop) for shard in self._shards],
+                           cfg.decimation, spec.task_class.per_env_fields(cfg))
         workers = self._workers
         # Shard 0 first, here: a config the task refuses fails before any process starts.
         self._local = LabVecEnv(
             spec, shard_cfg(first), backend="cpu", seed=seed, autoreset_mode=self.autoreset_mode,
-            shard=(0, n), physics=board and ShardPhysics(
-                board, 0, steals=False, check=lambda: _check_alive(workers)))
+            shard=(0, n), physics=ShardPhysics(board, 0, steals=False,
+                                               check=lambda: _check_alive(workers)))
         self._board = board
         local = self._local
         for name in ("metadata", "step_dt", "max_episode_length", "observation_names",

@@ -14,17 +14,21 @@ Each chunk has a lock that its shard's process releases at the start of the step
 whoever takes it steps the chunk. A shard counts the chunks others stepped for it on its `done`
 semaphore. The calling process's shard opens its chunks but takes none of the others': Ctrl-C
 lands in that process, and between taking a chunk and stepping it, it would leave its owner
-waiting forever.
+waiting forever. Where a task varies model fields per env (masses, friction), their values are
+in shared memory too, and a process writes them into its own models before it steps another
+shard's envs.
 """
 
 from __future__ import annotations
 
+import copy
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
 import mujoco
+import numpy as np
 import torch
 from mujoco import rollout
 
@@ -43,7 +47,7 @@ class ChunkBoard:
     handed to every shard's process (its semaphores and tensors pickle for `spawn`)."""
 
     def __init__(self, ctx: Any, model: mujoco.MjModel, shards: list[tuple[int, int]],
-                 nstep: int):
+                 nstep: int, per_env_fields: Sequence[str] = ()):
         n = shards[-1][1]
         nstate = mujoco.mj_stateSize(model, FULL)
         self.nstep = nstep
@@ -52,6 +56,9 @@ class ChunkBoard:
         self.out = torch.zeros(n, nstep, nstate, dtype=torch.float64).share_memory_()
         self.sensors = torch.zeros(n, nstep, model.nsensordata,
                                    dtype=torch.float64).share_memory_()
+        # The model's fields that vary per env, each env's values (`Sim.model_field`).
+        self.fields = {name: torch.from_numpy(np.stack([getattr(model, name)] * n)).share_memory_()
+                       for name in per_env_fields}
         # [thief, shard]: chunks of a shard that another process stepped (each row written by
         # its thief alone), to see that stealing happens.
         self.stolen = torch.zeros(len(shards), len(shards), dtype=torch.long).share_memory_()
@@ -84,14 +91,21 @@ class ChunkStepper:
     took) and, if `steals`, slower shards' untaken chunks. `check` raises if a process that may
     be stepping this shard's chunks is gone (else the wait would never end)."""
 
-    def __init__(self, physics: ShardPhysics, model: mujoco.MjModel):
+    def __init__(self, physics: ShardPhysics, model: mujoco.MjModel,
+                 models: list[mujoco.MjModel]):
+        """`models`: the MjModel of each of this shard's envs (`CpuSim.models`)."""
         board, shard = physics.board, physics.shard
         self.board, self.shard, self.steals = board, shard, physics.steals
         self.check = physics.check
         self._runner = rollout.Rollout(nthread=0)
         self._data = [mujoco.MjData(model)]
+        self._own, self._first = models, board.chunks[shard][0]
         size = max(b[c + 1] - b[c] for b in board.chunks for c in range(CHUNKS))
-        self._models = [model] * size
+        # Another shard's envs step on this process's model, or where fields vary per env on
+        # copies of it that take those envs' values first.
+        self._others = ([copy.copy(model) for _ in range(size)] if board.fields
+                        else [model] * size)
+        self._fields = {name: values.numpy() for name, values in board.fields.items()}
         arrays = (board.state, board.controls, board.out, board.sensors)
         self._state, self._controls, self._out, self._sensors = (a.numpy() for a in arrays)
         self._order = [(s, c) for s in [*range(shard + 1, len(board.chunks)), *range(shard)]
@@ -134,7 +148,14 @@ class ChunkStepper:
         count = rows.stop - rows.start
         if not count:  # a shard of fewer envs than chunks
             return
-        self._runner.rollout(self._models[:count], self._data, self._state[rows],
+        if shard == self.shard:
+            models = self._own[rows.start - self._first:rows.stop - self._first]
+        else:
+            models = self._others[:count]
+            for name, values in self._fields.items():
+                for model, value in zip(models, values[rows], strict=True):
+                    getattr(model, name)[:] = value
+        self._runner.rollout(models, self._data, self._state[rows],
                              self._controls[rows], nstep=self.board.nstep, state=self._out[rows],
                              sensordata=self._sensors[rows], skip_checks=True, chunk_size=count)
 

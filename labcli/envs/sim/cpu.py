@@ -1,5 +1,6 @@
 """CPU backend: MuJoCo's C engine steps the envs with `mujoco.rollout`: on two threads the
-calling thread and one worker thread, each its share of them; on more, MuJoCo's thread pool."""
+calling thread and one worker thread, each its share of them; on more, MuJoCo's thread pool; in
+an env shard, its process in chunks that other shards' processes may step too (`chunks.py`)."""
 
 from __future__ import annotations
 
@@ -112,8 +113,10 @@ class CpuSim(Sim):
         # One MjModel per env where a field differs per env (rollout takes one per env).
         self._models = ([copy.copy(model) for _ in range(num_envs)] if per_env_fields
                         else [model] * num_envs)
-        self._fields = {name: torch.from_numpy(np.stack([getattr(model, name)] * num_envs))
-                        for name in per_env_fields}
+        self._fields = ({name: torch.from_numpy(np.stack([getattr(model, name)] * num_envs))
+                         for name in per_env_fields} if shard is None else
+                        {name: shard.board.fields[name][shard.board.rows(shard.shard)]
+                         for name in per_env_fields})
         pool = self.nthread if self.nthread > 2 else 0  # 0: on the calling thread
         self._mine = rollout.Rollout(nthread=pool)
         self._my_data = [mujoco.MjData(model) for _ in range(max(pool, 1))]
@@ -146,7 +149,7 @@ class CpuSim(Sim):
             self._out = shard.board.out.numpy()[rows]
             self._ctrl_steps = shard.board.controls.numpy()[rows]
             self._sensors = shard.board.sensors.numpy()[rows]
-            self._chunks = ChunkStepper(shard, model)
+            self._chunks = ChunkStepper(shard, model, self._models)
         self._state[:] = self._default
         self._ctrl = np.zeros((num_envs, model.nu))
         self._sensordata = np.zeros((num_envs, model.nsensordata))
