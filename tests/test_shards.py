@@ -7,7 +7,10 @@ import copy
 import dataclasses
 import multiprocessing
 import os
+import shutil
 import signal
+import subprocess
+import sys
 import time
 
 import pytest
@@ -161,6 +164,39 @@ def test_a_broken_step_leaves_no_chunk_open_nor_count_behind(monkeypatch):
     assert not board.done[0].acquire(False)  # read at the start of the step, not as its own
     for stepper in (caller, worker):
         stepper.close()
+
+
+SHRUNK_SHM = """
+import sys
+from labcli.envs.shards import ShardedVecEnv
+from labcli.errors import LabError
+from labcli.plugins import registry
+spec = registry.get_task("cartpole")
+try:
+    ShardedVecEnv(spec, spec.config_class(num_envs=int(sys.argv[1])), shards=2)
+except LabError as exc:
+    print(exc)
+"""
+
+
+def _can_shrink_shm() -> bool:
+    return shutil.which("unshare") is not None and subprocess.run(
+        ["unshare", "-m", "true"], capture_output=True).returncode == 0
+
+
+@pytest.mark.skipif(not _can_shrink_shm(), reason="needs unshare -m (root) to mount a small "
+                    "/dev/shm")
+@pytest.mark.parametrize("num_envs", [65_536, 49_152])  # full at the chunk board, at the buffers
+def test_a_full_shared_memory_is_one_line(num_envs):
+    """/dev/shm as small as a container's (a tmpfs of 8 MiB in a mount namespace of its own)."""
+    script = (f"mount -t tmpfs -o size=8m tmpfs /dev/shm && {sys.executable} -c "
+              f"'{SHRUNK_SHM}' {num_envs}")
+    out = subprocess.run(["unshare", "-m", "sh", "-c", script], capture_output=True, text=True,
+                         timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.startswith("the env shards' tensors do not fit in shared memory "
+                                 "(/dev/shm: No space left on device"), out.stdout
+    assert "docker run --shm-size" in out.stdout and out.stdout.count("\n") == 1
 
 
 @pytest.fixture

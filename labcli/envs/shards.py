@@ -18,7 +18,7 @@ import sys
 import time
 import traceback
 import weakref
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -32,6 +32,7 @@ from labcli.envs.config import TaskConfig
 from labcli.envs.cores import cores
 from labcli.envs.env import EPISODE, LabVecEnv, Reduce, _autoreset_mode, checked_actions
 from labcli.envs.random import BLOCKS, EnvRandom, block_bounds
+from labcli.envs.sharedmem import shared
 from labcli.envs.sim.chunks import ChunkBoard, ShardPhysics
 from labcli.envs.spec import TaskSpec
 from labcli.errors import LabError, first_line
@@ -89,7 +90,7 @@ def _buffers(env: LabVecEnv, num_envs: int, count: int) -> dict[str, torch.Tenso
     """The tensors the processes share: the actions in, every output of a step out."""
     obs, act = env.single_observation_space.shape[0], env.single_action_space.shape[0]
     n, t = num_envs, len(env.termination_names)
-    return {name: tensor.share_memory_() for name, tensor in {
+    return {name: shared(tensor) for name, tensor in {
         "actions": torch.zeros(n, act), "obs": torch.zeros(n, obs),
         "final_obs": torch.zeros(n, obs), "reward": torch.zeros(n),
         "terminated": torch.zeros(n, dtype=torch.bool),
@@ -313,6 +314,7 @@ class ShardedVecEnv(gym.vector.VectorEnv):
         first = self._shards[0]
         ctx = mp.get_context("spawn")
         self._workers: list[_Worker] = []
+        self._stop_workers = weakref.finalize(self, _stop, self._workers)
         board = ChunkBoard(ctx, spec.task_class.build_model(cfg, spec.model),
                            [(shard.first, shard.stop) for shard in self._shards],
                            cfg.decimation, spec.task_class.per_env_fields(cfg))
@@ -323,7 +325,16 @@ class ShardedVecEnv(gym.vector.VectorEnv):
             shard=(0, n), physics=ShardPhysics(board, 0, steals=False,
                                                check=lambda: _check_alive(workers)))
         self._board = board
-        local = self._local
+        try:
+            self._start(spec, seed, board, ctx, shard_cfg)
+        except BaseException:
+            self.close()
+            raise
+
+    def _start(self, spec: TaskSpec, seed: int, board: ChunkBoard, ctx: Any,
+               shard_cfg: Callable[[_Shard], TaskConfig]) -> None:
+        """All but shard 0's env: the whole env's spaces, the shared buffers, the workers."""
+        local, n, first = self._local, self.num_envs, self._shards[0]
         for name in ("metadata", "step_dt", "max_episode_length", "observation_names",
                      "action_names", "single_observation_space", "single_action_space",
                      "clip_actions", "reward_names", "termination_names", "metric_names",
@@ -336,18 +347,12 @@ class ShardedVecEnv(gym.vector.VectorEnv):
         self._resume_state: dict[str, torch.Tensor] | None = None
         self._buffers = _buffers(local, n, len(self._shards))
         self._local_end = _ShardEnd(local, self._buffers, first, 0)
-        self._stop_workers = weakref.finalize(self, _stop, self._workers)
-        try:
-            for i, shard in enumerate(self._shards[1:], start=1):
-                self._workers.append(_Worker(ctx, (spec, shard_cfg(shard), seed,
-                                                   self.autoreset_mode, shard, n, i,
-                                                   self._buffers, board), i,
-                                             self._buffers["flags"].numpy()[i]))
-            for worker in self._workers:
-                worker.answer()
-        except BaseException:
-            self.close()
-            raise
+        for i, shard in enumerate(self._shards[1:], start=1):
+            self._workers.append(_Worker(ctx, (spec, shard_cfg(shard), seed,
+                                               self.autoreset_mode, shard, n, i, self._buffers,
+                                               board), i, self._buffers["flags"].numpy()[i]))
+        for worker in self._workers:
+            worker.answer()
 
     # gymnasium API ---------------------------------------------------------------------------
     def reset(self, *, seed: int | Sequence[int] | None = None,

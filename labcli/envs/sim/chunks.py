@@ -32,6 +32,8 @@ import numpy as np
 import torch
 from mujoco import rollout
 
+from labcli.envs.sharedmem import shared
+
 FULL = mujoco.mjtState.mjSTATE_FULLPHYSICS
 # Equal chunks per shard: more balance finer, but each is one more `rollout` call (~2 µs on a
 # VM; cartpole, 128 envs: 362 µs a step in one call, 379 µs in four of 32 envs). Chunks of 1/2,
@@ -51,17 +53,16 @@ class ChunkBoard:
         n = shards[-1][1]
         nstate = mujoco.mj_stateSize(model, FULL)
         self.nstep = nstep
-        self.state = torch.zeros(n, nstate, dtype=torch.float64).share_memory_()
-        self.controls = torch.zeros(n, nstep, model.nu, dtype=torch.float64).share_memory_()
-        self.out = torch.zeros(n, nstep, nstate, dtype=torch.float64).share_memory_()
-        self.sensors = torch.zeros(n, nstep, model.nsensordata,
-                                   dtype=torch.float64).share_memory_()
+        self.state = shared(torch.zeros(n, nstate, dtype=torch.float64))
+        self.controls = shared(torch.zeros(n, nstep, model.nu, dtype=torch.float64))
+        self.out = shared(torch.zeros(n, nstep, nstate, dtype=torch.float64))
+        self.sensors = shared(torch.zeros(n, nstep, model.nsensordata, dtype=torch.float64))
         # The model's fields that vary per env, each env's values (`Sim.model_field`).
-        self.fields = {name: torch.from_numpy(np.stack([getattr(model, name)] * n)).share_memory_()
+        self.fields = {name: shared(torch.from_numpy(np.stack([getattr(model, name)] * n)))
                        for name in per_env_fields}
         # [thief, shard]: chunks of a shard that another process stepped (each row written by
         # its thief alone), to see that stealing happens.
-        self.stolen = torch.zeros(len(shards), len(shards), dtype=torch.long).share_memory_()
+        self.stolen = shared(torch.zeros(len(shards), len(shards), dtype=torch.long))
         self.chunks = [[first + c * (stop - first) // CHUNKS for c in range(CHUNKS + 1)]
                        for first, stop in shards]
         self.open = [[ctx.Lock() for _ in range(CHUNKS)] for _ in shards]
