@@ -182,11 +182,12 @@ except LabError as exc:
 
 def _can_shrink_shm() -> bool:
     return shutil.which("unshare") is not None and subprocess.run(
-        ["unshare", "-m", "true"], capture_output=True).returncode == 0
+        ["unshare", "-m", "sh", "-c", "mount -t tmpfs -o size=1m tmpfs /dev/shm"],
+        capture_output=True).returncode == 0
 
 
-@pytest.mark.skipif(not _can_shrink_shm(), reason="needs unshare -m (root) to mount a small "
-                    "/dev/shm")
+@pytest.mark.skipif(not _can_shrink_shm(), reason="needs to mount a small /dev/shm in a mount "
+                    "namespace of its own (unshare -m, as root)")
 @pytest.mark.parametrize("num_envs", [65_536, 49_152])  # full at the chunk board, at the buffers
 def test_a_full_shared_memory_is_one_line(num_envs):
     """/dev/shm as small as a container's (a tmpfs of 8 MiB in a mount namespace of its own)."""
