@@ -118,7 +118,8 @@ class CpuSim(Sim):
                         {name: shard.board.fields[name][shard.board.rows(shard.shard)]
                          for name in per_env_fields})
         pool = self.nthread if self.nthread > 2 else 0  # 0: on the calling thread
-        self._mine = rollout.Rollout(nthread=pool)
+        # An env shard's physics steps through its `ChunkStepper` instead.
+        self._mine = rollout.Rollout(nthread=pool) if shard is None else None
         self._my_data = [mujoco.MjData(model) for _ in range(max(pool, 1))]
         # Envs [0, split) are the calling thread's, the rest the worker thread's.
         self._split = num_envs
