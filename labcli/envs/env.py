@@ -376,14 +376,15 @@ class LabVecEnv(gym.vector.VectorEnv):
 
     @property
     def stats_size(self) -> int:
-        """How many figures `move_stats` adds up."""
+        """How many figures the running sums of ended episodes hold (`keep_stats_in`)."""
         return len(self._stats)
 
-    def move_stats(self, out: torch.Tensor) -> None:
-        """Add the running sums of ended episodes' figures to `out` and clear them here (an env
-        shard hands them to the whole env)."""
-        out.add_(self._stats)
-        self._stats.zero_()
+    def keep_stats_in(self, out: torch.Tensor) -> None:
+        """Keep the running sums of ended episodes' figures in `out` from now on, which takes
+        those so far: an env shard's row of shared memory, which the whole env reads, instead
+        of a copy into it every step."""
+        out.copy_(self._stats)
+        self._stats = out
 
     def summarize_stats(self, totals: torch.Tensor) -> dict[str, float]:
         """The means `pop_stats` reports, from sums laid out as this env keeps them."""

@@ -167,7 +167,8 @@ class _ShardEnd:
     def __init__(self, env: LabVecEnv, buffers: dict[str, torch.Tensor], shard: _Shard,
                  index: int):
         rows = slice(shard.first, shard.stop)
-        self.env, self.stats = env, buffers["stats"][index]
+        self.env = env
+        env.keep_stats_in(buffers["stats"][index])
         # Views made once: slicing each buffer on every step costs as much as copying into it.
         self.actions, self.final_obs = buffers["actions"][rows], buffers["final_obs"][rows]
         self.outputs = [buffers[name][rows] for name in _STEP_OUTPUTS]
@@ -184,7 +185,6 @@ class _ShardEnd:
             out.copy_(value)
         if "final_obs" in info:
             self.final_obs.copy_(info["final_obs"])
-        self.env.move_stats(self.stats)
 
     @torch.inference_mode()
     def handle(self, command: str, args: Sequence[Any]) -> Any:
