@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import io
 import itertools
 import tempfile
@@ -87,11 +88,6 @@ def rollout_rate(env: LabVecEnv, seconds: float, banked: int = 16) -> float:
     The faster of two chunkings, each timed for `seconds`: one chunk of envs per thread, and
     MuJoCo's default (ten per thread), which balances unequal cores (a 16-core host: 0.99–1.15
     of one per thread; a 2-core VM: 0.85)."""
-    chunkings = (True, False) if env.sim.nthread > 1 else (True,)  # one thread: one chunk
-    return max(_rollout_rate(env, seconds, banked, per_thread) for per_thread in chunkings)
-
-
-def _rollout_rate(env: LabVecEnv, seconds: float, banked: int, per_thread: bool) -> float:
     sim, n, nstep = env.sim, env.num_envs, env.cfg.decimation
     model, nthread = sim.model, sim.nthread
     gen = torch.Generator().manual_seed(0)
@@ -103,25 +99,30 @@ def _rollout_rate(env: LabVecEnv, seconds: float, banked: int, per_thread: bool)
     datas = [mujoco.MjData(model) for _ in range(max(nthread, 1))]
     initial = np.empty(mujoco.mj_stateSize(model, full))
     mujoco.mj_getState(model, datas[0], initial, full)
-    state = sim.physics_state()
+    start = sim.physics_state()
+    state = start.copy()
     runner = rollout.Rollout(nthread=nthread if nthread > 1 else 0)
     states = np.empty((n, nstep, state.shape[1]))
     sensors = np.empty((n, nstep, model.nsensordata))  # recorded, as the backend does
     turn = itertools.cycle(controls)
+    # One chunk a thread; on more threads than one also MuJoCo's default chunking (None).
+    chunk_sizes = (-(-n // len(datas)), *((None,) if len(datas) > 1 else ()))
 
-    chunk_size = -(-n // len(datas)) if per_thread else None
-
-    def step() -> int:
+    def step(chunk_size: int | None) -> int:
         runner.rollout(sim.models, datas, state, next(turn), nstep=nstep, skip_checks=True,
                        state=states, sensordata=sensors, chunk_size=chunk_size)
         state[:] = states[:, -1]
         state[~np.isfinite(state).all(axis=1)] = initial
         return n
 
+    rates = []
     try:
-        return rate(step, seconds)
+        for chunk_size in chunk_sizes:
+            state[:] = start  # each from the env's states
+            rates.append(rate(functools.partial(step, chunk_size), seconds))
     finally:
         runner.close()
+    return max(rates)
 
 
 def train_rate(task: str, framework: str, num_envs: int, backend: str | None,
