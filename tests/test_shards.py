@@ -311,23 +311,27 @@ def test_envs_draw_the_same_numbers_in_shards_and_in_one_batch(total, block):
 def test_the_shard_count_follows_threads_cores_and_envs(monkeypatch):
     monkeypatch.setattr(shards_module, "cores", lambda: 16)
     assert [shard_count(4096, t) for t in (1, 2, 3, 4, 7, 8, 12, 16, 32)] == \
-        [1, 1, 2, 4, 4, 8, 8, 16, 16]
+        [1, 2, 2, 4, 4, 8, 8, 16, 16]
     assert shard_count(4096, None) == 16
     assert [shard_count(n, 16) for n in (64, 128, 256, 1024)] == [1, 2, 4, 16]
     monkeypatch.setattr(shards_module, "cores", lambda: 2)
-    assert shard_count(4096, 16) == 1  # no more processes than cores
+    assert shard_count(4096, 16) == 2  # no more processes than cores
+    monkeypatch.setattr(shards_module, "cores", lambda: 1)
+    assert shard_count(4096, None) == 1
     with pytest.raises(LabError, match="do not make 3 shards"):
         build("cartpole", 128, shards=3)
 
 
-def test_make_env_shards_the_cpu_backend_on_more_than_two_cores(monkeypatch):
+def test_make_env_shards_the_cpu_backend_on_two_threads_or_more(monkeypatch):
     monkeypatch.setattr(shards_module, "cores", lambda: 4)
     spec = registry.get_task("cartpole")
-    env = make_env(spec, spec.config_class(num_envs=256, threads=4), seed=0)
-    try:
-        assert isinstance(env, ShardedVecEnv) and env.threads == 4
-    finally:
-        env.close()
-    two = make_env(spec, spec.config_class(num_envs=256, threads=2), seed=0)
-    assert isinstance(two, LabVecEnv)
-    two.close()
+    for threads in (4, 2):
+        env = make_env(spec, spec.config_class(num_envs=256, threads=threads), seed=0)
+        try:
+            assert isinstance(env, ShardedVecEnv) and env.threads == threads
+        finally:
+            env.close()
+    for num_envs, threads in ((256, 1), (64, 2)):  # one thread; too few envs for two shards
+        one = make_env(spec, spec.config_class(num_envs=num_envs, threads=threads), seed=0)
+        assert isinstance(one, LabVecEnv)
+        one.close()
