@@ -47,6 +47,8 @@ from rich.console import Console
 from rich.table import Table
 
 from labcli.envs.env import LabVecEnv
+from labcli.envs.make import make_env as make_lab_env
+from labcli.envs.shards import ShardedVecEnv
 from labcli.plugins import registry
 from labcli.plugins.policy import one_torch_thread
 from labcli.runs.bench import bench, env_rate, rate, time_to_success
@@ -68,9 +70,10 @@ console = Console(width=None if sys.stdout.isatty() else 150)
 
 
 # Timing ---------------------------------------------------------------------------------------
-def make_env(num_envs: int) -> LabVecEnv:
+def make_env(num_envs: int) -> LabVecEnv | ShardedVecEnv:
+    """The env `lab train` steps: in shards on two threads or more (128 envs or more)."""
     spec = registry.get_task(TASK)
-    return LabVecEnv(spec, spec.config_class(num_envs=num_envs), backend="cpu", seed=0)
+    return make_lab_env(spec, spec.config_class(num_envs=num_envs), backend="cpu", seed=0)
 
 
 def lab_rate(num_envs: int, seconds: float) -> float:
@@ -220,8 +223,10 @@ TASK_PARTS = ("apply_actions", "update", "observations", "reward_terms", "termin
 
 def profile(num_envs: int, steps: int = 300) -> dict[str, float]:
     """Per-step microseconds of `sim.step` (the rollout), of the task's methods and of the rest
-    (the env's own code), with each method wrapped by a timer; median over blocks of steps."""
-    env = make_env(num_envs)
+    (the env's own code), with each method wrapped by a timer; median over blocks of steps. In
+    one process (where a shard's parts run beside the others', they would not add up)."""
+    spec = registry.get_task(TASK)
+    env = LabVecEnv(spec, spec.config_class(num_envs=num_envs), backend="cpu", seed=0)
     env.reset(seed=0)
     totals: dict[str, float] = defaultdict(float)
 

@@ -4,7 +4,8 @@
                                [--repeats 3] [--json FILE]
 
 Per task and env count, env-steps/s (random actions, resets included) of
-- lab: `LabVecEnv` on the cpu backend, torch tensors out (as `lab bench`);
+- lab: the env `lab train` steps on the cpu backend (in shards on two threads or more), torch
+  tensors out (`lab bench`'s rows);
 - rollout: raw `mujoco.rollout` of what the env steps (its models, states and the controls its
   actuation makes of random actions) with the same decimation and threads, no task code
   (`labcli.runs.bench.rollout_rate`, as `lab bench`);
@@ -31,22 +32,18 @@ from rich.table import Table
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_cpu import console, fmt, fmt_load, header, ratio  # noqa: E402
 
-from labcli.envs.env import LabVecEnv  # noqa: E402
 from labcli.plugins import registry  # noqa: E402
-from labcli.runs.bench import env_rate, rate, rollout_rate  # noqa: E402
+from labcli.runs.bench import bench, rate  # noqa: E402
 
 GYM_IDS = {"ant": "Ant-v5", "humanoid": "Humanoid-v5"}
 
 
 def lab_and_rollout(task: str, num_envs: int, seconds: float) -> tuple[float, float, int]:
-    spec = registry.get_task(task)
-    env = LabVecEnv(spec, spec.config_class(num_envs=num_envs), backend="cpu")
-    try:
-        lab = env_rate(env, seconds)
-        raw = rollout_rate(env, seconds)
-        return lab, raw, env.cfg.decimation
-    finally:
-        env.close()
+    """`lab bench`'s row: the env as `lab train` steps it (in shards on two threads or more)
+    and the rollout of the states it reached."""
+    (row,) = bench(task, [num_envs], backend="cpu", seconds=seconds)
+    return (row.env_steps_per_s, row.rollout_steps_per_s,
+            registry.get_task(task).config_class().decimation)
 
 
 def gym_sync(task: str, num_envs: int, seconds: float) -> tuple[float, int]:
