@@ -88,8 +88,9 @@ class CpuSim(Sim):
     """The state of all envs is one numpy array (torch views of it are `qpos`, `qvel`); each step
     is one `mujoco.rollout` of `nstep` physics steps from it.
 
-    On two threads, the calling thread steps a share of the envs itself beside one worker thread,
-    rather than sleeping while MuJoCo's pool steps them all: a pool wakes its threads and then
+    On two threads (an env too small to shard: `labcli.envs.shards.shard_count`), the calling
+    thread steps a share of the envs itself beside one worker thread, rather than sleeping
+    while MuJoCo's pool steps them all: a pool wakes its threads and then
     the caller each step, and on a VM such wake-ups are slow and uneven (cartpole, 256 envs, 2
     cores: `sim.step` took 495–538 µs on average with the pool, 90th percentile 519–881 µs;
     474–476 µs and 506–511 µs this way). The share is balanced each step (see `step`). On more
