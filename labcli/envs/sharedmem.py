@@ -23,7 +23,7 @@ def shared(tensor: torch.Tensor) -> torch.Tensor:
             raise
         raise LabError(f"the env shards' tensors do not fit in shared memory{_room()}",
                        "give /dev/shm more room (docker run --shm-size=1g), use fewer envs, or "
-                       "--set env.threads=2 to step them in one process") from None
+                       "--set env.threads=1 to step them in one process") from None
 
 
 def _room() -> str:
