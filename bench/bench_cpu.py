@@ -143,7 +143,7 @@ def throughput(envs: list[int], seconds: float, repeats: int,
 
 
 # Adapters -------------------------------------------------------------------------------------
-def adapter_steppers(env: LabVecEnv) -> dict[str, Callable[[], int]]:
+def adapter_steppers(env: LabVecEnv | ShardedVecEnv) -> dict[str, Callable[[], int]]:
     """One env step through each framework's adapter, with the actions that library passes."""
     from lab_rl_games.adapter import RlGamesVecEnv
     from lab_rsl_rl.adapter import RslRlVecEnv

@@ -107,6 +107,9 @@ class ChunkStepper:
         self._others = ([copy.copy(model) for _ in range(size)] if board.fields
                         else [model] * size)
         self._fields = {name: values.numpy() for name, values in board.fields.items()}
+        # This process's row of the count, as numpy: a torch index and add would cost more than
+        # the lock a steal takes.
+        self._stolen = board.stolen.numpy()[shard]
         arrays = (board.state, board.controls, board.out, board.sensors)
         self._state, self._controls, self._out, self._sensors = (a.numpy() for a in arrays)
         self._order = [(s, c) for s in [*range(shard + 1, len(board.chunks)), *range(shard)]
@@ -141,7 +144,7 @@ class ChunkStepper:
                     self._roll(shard, chunk)
                 finally:
                     self.board.done[shard].release()
-                self.board.stolen[self.shard, shard] += 1
+                self._stolen[shard] += 1
 
     def _roll(self, shard: int, chunk: int) -> None:
         bounds = self.board.chunks[shard]
