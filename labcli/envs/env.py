@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 import gymnasium as gym
@@ -125,9 +126,9 @@ class LabVecEnv(gym.vector.VectorEnv):
         # diverges or gets a non-finite action: the step asks, and skips the work that would
         # change nothing then (resets, episode figures, masking). On a GPU asking would wait for
         # the device and break the step's CUDA graph: that work always runs there. Skipping an
-        # idle reset also decides which blocks draw (`EnvRandom.draw_only_for`); the shortcuts
+        # idle reset also decides which blocks draw (`EnvRandom.only_for`); the shortcuts
         # change no output.
-        self._skip_idle_resets = self._shortcuts = dev.type == "cpu"
+        self._shortcuts = dev.type == "cpu"
         self._renderer: SceneRenderer | None = None
         self._resume_state: dict[str, torch.Tensor] | None = None
         # On a GPU the step is host-bound when eager: it replays as one CUDA graph instead.
@@ -177,6 +178,12 @@ class LabVecEnv(gym.vector.VectorEnv):
             return self._graphed(actions)
         return self._step(actions)
 
+    def step_into(self, actions: torch.Tensor, out: StepOutputs) -> None:
+        """`step`, its outputs written into `out` (an env shard's rows of the shared buffers)
+        rather than into new tensors: each output is an op's `out=`, where copying the step's
+        outputs there would be one op more for each."""
+        self._step(checked_actions(actions, self.action_space.shape, self.device), out)
+
     def close_extras(self, **kwargs: Any) -> None:
         # VectorEnv.close calls this once, then sets `closed`.
         if self._graphed is not None:
@@ -186,9 +193,10 @@ class LabVecEnv(gym.vector.VectorEnv):
             self._renderer = None
         self.sim.close()
 
-    def _step(self, actions: torch.Tensor):
+    def _step(self, actions: torch.Tensor, out: StepOutputs | None = None):
         """The MDP of one env step, as torch operations only (no host syncs, fixed shapes), so
-        that on a GPU it replays as a CUDA graph."""
+        that on a GPU it replays as a CUDA graph. With `out`, its outputs go there."""
+        o = out or _NEW_OUTPUTS
         safe, bad_action = self._safe_actions(actions)
         self.task.apply_actions(safe)
         self.sim.step(self.cfg.decimation)
@@ -200,7 +208,7 @@ class LabVecEnv(gym.vector.VectorEnv):
         # A row per cause ([cause, env]): rows stack and reduce faster than short columns.
         terminated = torch.stack([*causes.values(),
                                   self._none if unstable is None else unstable])
-        reward = self._reward(unstable)
+        reward = self._reward(unstable, o.reward)
 
         next_step = self.autoreset_mode is AutoresetMode.NEXT_STEP
         if next_step:
@@ -211,27 +219,33 @@ class LabVecEnv(gym.vector.VectorEnv):
             if bad_action is not None:
                 bad_action.logical_and_(live)
             reward.masked_fill_(self._pending, 0.0)
-        terminated_any = terminated.any(dim=0)
-        done = terminated_any | (self.episode_length >= self.max_episode_length)
+        terminated_any = torch.any(terminated, dim=0, out=o.terminated)
+        done = torch.logical_or(terminated_any, self.episode_length >= self.max_episode_length,
+                                out=o.done)
         if next_step:
             done.logical_and_(live)
-        truncated = done ^ terminated_any  # timed out and not terminated
+        # Timed out and not terminated.
+        truncated = torch.logical_xor(done, terminated_any, out=o.truncated)
         self.task.after_step()
         ended = not self._shortcuts or bool(done.any())
-        success = self.task.success(truncated) & truncated if ended else done.clone()
-        episode = {"r": self.episode_return.clone(), "l": self.episode_length.clone(),
+        success = (torch.logical_and(self.task.success(truncated), truncated, out=o.success)
+                   if ended else _copy(done, o.success))
+        episode = {"r": _copy(self.episode_return, o.r), "l": _copy(self.episode_length, o.l),
                    "success": success}
         if ended:
             self._accumulate(done, success, terminated, bad_action)
-        info = {EPISODE: episode, f"_{EPISODE}": done, "terminations": terminated.t()}
+        # A view of this step's own tensor needs no copy; a shard's buffer does.
+        terminations = terminated.t() if out is None else out.terminations.copy_(terminated.t())
+        info = {EPISODE: episode, f"_{EPISODE}": done, "terminations": terminations}
         if next_step:
             self._reset_envs(self._pending)
             self._pending.copy_(done)
-            return self.observations(), reward, terminated_any, truncated, info
-        final_obs = info["final_obs"] = self.observations()
+            return self.observations(o.obs), reward, terminated_any, truncated, info
+        final_obs = info["final_obs"] = self.observations(o.final_obs)
         info["_final_obs"] = done
         # With no env reset the state is unchanged: a copy, not the task's terms again.
-        obs = self.observations() if ended and self._reset_envs(done) else final_obs.clone()
+        obs = (self.observations(o.obs) if ended and self._reset_envs(done)
+               else _copy(final_obs, o.obs))
         return obs, reward, terminated_any, truncated, info
 
     def _safe_actions(self, actions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None]:
@@ -417,13 +431,11 @@ class LabVecEnv(gym.vector.VectorEnv):
         On the CPU, asking whether any env ended is free, and most steps none does: the reset
         path (the task's draws, masked writes) is skipped then. On a GPU the question would
         wait for the device and break the step's CUDA graph: the masked reset always runs."""
-        if self._skip_idle_resets and not self.rng.draw_only_for(mask):
-            return False
-        try:
+        with self.rng.only_for(mask) as some:
+            if not some:
+                return False
             self.sim.reset_to_defaults(mask)
             self.task.reset(mask, self.rng)
-        finally:
-            self.rng.draw_only_for(None)
         self.task.update()
         self.episode_length.masked_fill_(mask, 0)
         self._episode_sums.masked_fill_(mask, 0.0)
@@ -432,8 +444,9 @@ class LabVecEnv(gym.vector.VectorEnv):
             self._pending.logical_and_(mask.logical_not())
         return True
 
-    def _reward(self, unstable: torch.Tensor | None) -> torch.Tensor:
-        """The weighted terms' sum; each weighted term also adds to its episode's total."""
+    def _reward(self, unstable: torch.Tensor | None, out: torch.Tensor | None) -> torch.Tensor:
+        """The weighted terms' sum (into `out`, if given); each weighted term also adds to its
+        episode's total."""
         terms = self.task.reward_terms()
         rows = torch.stack([terms[name] for name in self.reward_names])  # contiguous copies
         if unstable is not None:  # a diverged env's state is garbage: it earns nothing
@@ -441,14 +454,41 @@ class LabVecEnv(gym.vector.VectorEnv):
         # Cast and transposed in one copy: half the cost of stacking columns of another dtype.
         weighted = self._weighted.copy_(rows.t())
         weighted.mul_(self._weights).nan_to_num_(0.0, 0.0, 0.0)
-        reward = weighted.sum(dim=1)
+        reward = torch.sum(weighted, dim=1, out=out)
         self.episode_return += reward
         self.episode_terms += weighted
         return reward
 
-    def observations(self) -> torch.Tensor:
-        """The current observations: what the last step or reset returned."""
-        return self.task.observations().to(torch.float32).nan_to_num(0.0, 0.0, 0.0)
+    def observations(self, out: torch.Tensor | None = None) -> torch.Tensor:
+        """The current observations: what the last step or reset returned (in `out`, if given:
+        the cast is the copy into it)."""
+        obs = self.task.observations()
+        if out is None:
+            return obs.to(torch.float32).nan_to_num(0.0, 0.0, 0.0)
+        return out.copy_(obs).nan_to_num_(0.0, 0.0, 0.0)
+
+
+@dataclass(frozen=True)
+class StepOutputs:
+    """Where a step writes its outputs (`LabVecEnv.step_into`); None: into a new tensor."""
+
+    obs: torch.Tensor | None = None
+    final_obs: torch.Tensor | None = None
+    reward: torch.Tensor | None = None
+    terminated: torch.Tensor | None = None
+    truncated: torch.Tensor | None = None
+    done: torch.Tensor | None = None
+    r: torch.Tensor | None = None
+    l: torch.Tensor | None = None  # noqa: E741 - gymnasium's episode length key
+    success: torch.Tensor | None = None
+    terminations: torch.Tensor | None = None
+
+
+_NEW_OUTPUTS = StepOutputs()
+
+
+def _copy(value: torch.Tensor, out: torch.Tensor | None) -> torch.Tensor:
+    return value.clone() if out is None else out.copy_(value)
 
 
 def checked_actions(actions: Any, shape: Sequence[int], device: torch.device) -> torch.Tensor:

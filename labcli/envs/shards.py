@@ -19,7 +19,7 @@ import time
 import traceback
 import weakref
 from collections.abc import Callable, Iterator, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from typing import Any
 
 import gymnasium as gym
@@ -30,7 +30,14 @@ from gymnasium.vector import AutoresetMode
 
 from labcli.envs.config import TaskConfig
 from labcli.envs.cores import cores
-from labcli.envs.env import EPISODE, LabVecEnv, Reduce, _autoreset_mode, checked_actions
+from labcli.envs.env import (
+    EPISODE,
+    LabVecEnv,
+    Reduce,
+    StepOutputs,
+    _autoreset_mode,
+    checked_actions,
+)
 from labcli.envs.random import BLOCKS, EnvRandom, block_bounds
 from labcli.envs.sharedmem import shared
 from labcli.envs.sim.chunks import ChunkBoard, ShardPhysics
@@ -79,11 +86,6 @@ def _layout(num_envs: int, count: int) -> list[_Shard]:
                        f"{len(bounds) - 1} shards")
     return [_Shard(bounds[i * per], bounds[(i + 1) * per], slice(i * per, (i + 1) * per))
             for i in range(count)]
-
-
-# A step's outputs in the shared buffers, in the order `_ShardEnd.step` writes them.
-_STEP_OUTPUTS = ("obs", "reward", "terminated", "truncated", "done", "r", "l", "success",
-                 "terminations")
 
 
 def _buffers(env: LabVecEnv, num_envs: int, count: int) -> dict[str, torch.Tensor]:
@@ -170,21 +172,14 @@ class _ShardEnd:
         self.env = env
         env.keep_stats_in(buffers["stats"][index])
         # Views made once: slicing each buffer on every step costs as much as copying into it.
-        self.actions, self.final_obs = buffers["actions"][rows], buffers["final_obs"][rows]
-        self.outputs = [buffers[name][rows] for name in _STEP_OUTPUTS]
-        self.obs = self.outputs[_STEP_OUTPUTS.index("obs")]
+        self.actions = buffers["actions"][rows]
+        self.outputs = StepOutputs(**{f.name: buffers[f.name][rows] for f in fields(StepOutputs)})
+        self.obs = self.outputs.obs
 
     @torch.inference_mode()
     def step(self) -> None:
-        """Step on the shard's rows of the shared actions; write its outputs to its rows."""
-        obs, reward, terminated, truncated, info = self.env.step(self.actions)
-        episode = info[EPISODE]
-        values = (obs, reward, terminated, truncated, info[f"_{EPISODE}"], episode["r"],
-                  episode["l"], episode["success"], info["terminations"])
-        for out, value in zip(self.outputs, values, strict=True):
-            out.copy_(value)
-        if "final_obs" in info:
-            self.final_obs.copy_(info["final_obs"])
+        """Step on the shard's rows of the shared actions, its outputs into its rows."""
+        self.env.step_into(self.actions, self.outputs)
 
     @torch.inference_mode()
     def handle(self, command: str, args: Sequence[Any]) -> Any:
