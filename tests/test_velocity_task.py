@@ -87,7 +87,8 @@ def test_heading_control_steers_the_yaw_rate_toward_the_heading_within_the_range
     r = env.task.robot
     r.root_quat[:] = torch.tensor(yaw_quat(0.3), dtype=torch.float64)
     command.heading[:] = torch.tensor([0.5, -1.0, -2.5, -2.9], dtype=torch.float64)
-    command._steer()
+    r.update()  # as after a step: the robot's yaw is the new state's
+    command._steer(r.yaw)
     # 0.5 x the heading error, clipped to the yaw-rate range (-1, 1). The last error, -3.2 rad,
     # is +3.08 the short way round: it turns left.
     assert command.command[:, 2].tolist() == pytest.approx([0.1, -0.65, -1.0, 1.0], abs=1e-9)

@@ -3,6 +3,9 @@ not depend on how many envs share its batch (one process, or the cpu backend's e
 
 from __future__ import annotations
 
+import contextlib
+from collections.abc import Iterator
+
 import numpy as np
 import torch
 
@@ -55,6 +58,22 @@ class EnvRandom:
             return False
         self._drawing = drawing
         return True
+
+    @contextlib.contextmanager
+    def only_for(self, mask: torch.Tensor) -> Iterator[bool]:
+        """Draws inside are for the envs in `mask`, and it says whether there are any: work
+        for none (a reset, a resample) may be skipped. On the CPU, reading the mask is free, and
+        the blocks with no env in it neither draw nor advance (`draw_only_for`). On a GPU it
+        says yes and every block draws: reading the mask would wait for the device and break
+        the step's CUDA graph."""
+        if self.device.type != "cpu":
+            yield True
+            return
+        drawing = self._drawing
+        try:
+            yield self.draw_only_for(mask)
+        finally:
+            self._drawing = drawing
 
     def manual_seed(self, seed: int) -> None:
         for block, generator in zip(self.blocks, self.generators, strict=True):

@@ -39,6 +39,13 @@ class UniformVelocityCommand:
         self.errors = like.new_zeros(n, 2)
         self.steps = like.new_zeros(n)
         self.mean_errors = like.new_zeros(n, 2)
+        # Views taken once: each step reads them, and indexing costs as much as an op.
+        self._lin_xy, self._yaw_rate = self.command[:, :2], self.command[:, 2]
+        self._robot_lin_xy = self.robot.root_lin_vel_b[:, :2]
+        self._robot_yaw_rate = self.robot.root_ang_vel_b[:, 2]
+        self._errors_lin, self._errors_yaw = self.errors.unbind(1)
+        self._lin_error = like.new_empty(n, 2)
+        self._standing = self.standing_env[:, None]
 
     def __call__(self) -> torch.Tensor:
         return self.command
@@ -48,18 +55,23 @@ class UniformVelocityCommand:
         self.mean_errors.masked_fill_(mask[:, None], 0.0)
         self.steps.masked_fill_(mask, 0.0)
         self._resample(mask)
-        self._steer()
+        # The env recomputes what the robot derives after the reset, not yet: the heading is
+        # the root quaternion's.
+        self._steer(math.yaw_of(self.robot.root_quat))
 
     def after_step(self) -> None:
-        r = self.robot
-        self.errors[:, 0].add_(torch.linalg.vector_norm(
-            self.command[:, :2] - r.root_lin_vel_b[:, :2], dim=1))
-        self.errors[:, 1].add_((self.command[:, 2] - r.root_ang_vel_b[:, 2]).abs())
+        torch.sub(self._lin_xy, self._robot_lin_xy, out=self._lin_error)
+        self._errors_lin.add_(torch.linalg.vector_norm(self._lin_error, dim=1))
+        self._errors_yaw.add_(torch.sub(self._yaw_rate, self._robot_yaw_rate).abs_())
         self.steps.add_(1.0)
         torch.div(self.errors, self.steps[:, None], out=self.mean_errors)
         self.time_left.sub_(self.task.step_dt)
-        self._resample(self.time_left <= 0.0)
-        self._steer()
+        expired = self.time_left <= 0.0
+        # Most steps no command expires: on the CPU the draw and its masked writes are skipped.
+        with self.task.rng.only_for(expired) as some:
+            if some:
+                self._resample(expired)
+        self._steer(self.robot.yaw)
 
     def metrics(self) -> dict[str, torch.Tensor]:
         return {"error_vel_xy": self.mean_errors[:, 0], "error_vel_yaw": self.mean_errors[:, 1]}
@@ -75,13 +87,12 @@ class UniformVelocityCommand:
         torch.where(mask, drawn[:, 6] <= cfg.rel_standing_envs, self.standing_env,
                     out=self.standing_env)
 
-    def _steer(self) -> None:
-        """The heading envs' yaw rate toward their heading; the standing envs' command 0. From
-        the root's quaternion, not the robot's derived yaw: after a reset this runs before the
-        env recomputes what the robot derives."""
+    def _steer(self, yaw: torch.Tensor) -> None:
+        """The heading envs' yaw rate toward their heading, from the root's `yaw`; the standing
+        envs' command 0."""
         cfg = self.cfg
         if cfg.heading_command:
-            error = math.wrap_to_pi(self.heading - math.yaw_of(self.robot.root_quat))
+            error = math.wrap_to_pi(self.heading - yaw)
             rate = (error * cfg.heading_control_stiffness).clamp(*cfg.ang_vel_z)
-            torch.where(self.heading_env, rate, self.command[:, 2], out=self.command[:, 2])
-        self.command.masked_fill_(self.standing_env[:, None], 0.0)
+            torch.where(self.heading_env, rate, self._yaw_rate, out=self._yaw_rate)
+        self.command.masked_fill_(self._standing, 0.0)

@@ -91,17 +91,21 @@ class reset_root_state_uniform:  # noqa: N801
 
 class push_by_setting_velocity:  # noqa: N801
     def __init__(self, task: RobotTask, cfg: c.PushByVelocity):
-        self.sim, self.robot, self.dt = task.sim, task.robot, task.step_dt
+        self.task, self.dt = task, task.step_dt
         self.interval = Uniform(task, [cfg.interval_s])
         self.push = Uniform(task, [cfg.velocity_range.get(k, (0.0, 0.0)) for k in c.POSE_KEYS])
         self.time_left = self.interval()[:, 0].clone()
+        self.root_qvel = task.sim.qvel[:, task.robot.root_qvel]
 
     def pre_physics(self) -> None:
         self.time_left.sub_(self.dt)
         due = self.time_left <= 0.0
-        qvel = self.sim.qvel[:, self.robot.root_qvel]
-        torch.where(due[:, None], qvel + self.push(), qvel, out=qvel)
-        torch.where(due, self.interval()[:, 0], self.time_left, out=self.time_left)
+        # Most steps no push is due: on the CPU the draws and masked writes are skipped.
+        with self.task.rng.only_for(due) as some:
+            if some:
+                qvel = self.root_qvel
+                torch.where(due[:, None], qvel + self.push(), qvel, out=qvel)
+                torch.where(due, self.interval()[:, 0], self.time_left, out=self.time_left)
 
 
 class _ModelEvent:
