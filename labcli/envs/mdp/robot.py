@@ -84,16 +84,38 @@ class Robot:
         n = sim.num_envs
         # Derived once per state (update()), from the root's rotation matrix R (world from
         # body): its columns and rows are the axes and gravity, its entries the angles.
-        self.rotation = torch.empty(n, 3, 3, dtype=dtype, device=dev)
+        r = self.rotation = torch.empty(n, 3, 3, dtype=dtype, device=dev)
         self._qq = torch.empty(n, 4, 4, dtype=dtype, device=dev)
         self._qq_to_r = torch.as_tensor(math.QUAT_OUTER_TO_ROTATION, dtype=dtype, device=dev)
         self.root_lin_vel_b = torch.empty(n, 3, dtype=dtype, device=dev)
         self.projected_gravity_b = torch.empty(n, 3, dtype=dtype, device=dev)
-        self.forward_w = self.rotation[:, :, 0]  # the root's x axis in the world: a view of R
-        self.roll, self.pitch, self.yaw = (torch.empty(n, dtype=dtype, device=dev)
-                                           for _ in range(3))
+        self.forward_w = r[:, :, 0]  # the root's x axis in the world: a view of R
+        # The views `update` reads and writes, taken once: each costs as much as an op on it.
+        q = self.root_quat
+        self._q_col, self._q_row = q[:, :, None], q[:, None, :]
+        self._qq_flat, self._r_flat = self._qq.view(n, 16), r.view(n, 9)
+        self._v_row = self.root_lin_vel_w[:, None, :]
+        self._v_b_row = self.root_lin_vel_b[:, None, :]
+        self._r_row2 = r[:, 2, :]
         self._per_state: dict[object, torch.Tensor] = {}
         self.update()
+
+    # The root's roll, pitch and yaw (rad; extrinsic x-y-z, as `math.quat_from_rpy`), from R
+    # once per state when a term reads them: most tasks read one or none.
+    @property
+    def roll(self) -> torch.Tensor:
+        r = self.rotation
+        return self.per_state("roll", lambda: torch.atan2(r[:, 2, 1], r[:, 2, 2]))
+
+    @property
+    def pitch(self) -> torch.Tensor:
+        r = self.rotation
+        return self.per_state("pitch", lambda: torch.asin(r[:, 2, 0].clamp(-1.0, 1.0)).neg_())
+
+    @property
+    def yaw(self) -> torch.Tensor:
+        r = self.rotation
+        return self.per_state("yaw", lambda: torch.atan2(r[:, 1, 0], r[:, 0, 0]))
 
     @staticmethod
     def _root_joint(model: mujoco.MjModel, root_body: str | None) -> int:
@@ -115,16 +137,11 @@ class Robot:
             torch.index_select(self.sim.qpos, 1, self._qidx, out=self.joint_pos)
         if self._didx is not None:
             torch.index_select(self.sim.qvel, 1, self._didx, out=self.joint_vel)
-        q, r = self.root_quat, self.rotation
-        n = q.shape[0]
-        torch.mul(q[:, :, None], q[:, None, :], out=self._qq)
-        torch.matmul(self._qq.view(n, 16), self._qq_to_r, out=r.view(n, 9))
+        torch.mul(self._q_col, self._q_row, out=self._qq)
+        torch.matmul(self._qq_flat, self._qq_to_r, out=self._r_flat)
         # R^T v as v^T R: one batched product.
-        torch.matmul(self.root_lin_vel_w[:, None, :], r, out=self.root_lin_vel_b[:, None, :])
-        torch.neg(r[:, 2, :], out=self.projected_gravity_b)  # R^T (0, 0, -1)
-        torch.atan2(r[:, 2, 1], r[:, 2, 2], out=self.roll)
-        torch.asin(r[:, 2, 0].clamp(-1.0, 1.0), out=self.pitch).neg_()
-        torch.atan2(r[:, 1, 0], r[:, 0, 0], out=self.yaw)
+        torch.matmul(self._v_row, self.rotation, out=self._v_b_row)
+        torch.neg(self._r_row2, out=self.projected_gravity_b)  # R^T (0, 0, -1)
         self.forget_derived()
 
     def forget_derived(self) -> None:
