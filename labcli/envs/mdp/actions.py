@@ -32,8 +32,7 @@ def per_actuator(task: RobotTask, scale: float | dict[str, float]) -> list[float
 
 class JointEffortAction:
     def __init__(self, task: RobotTask, cfg: c.JointEffort):
-        self.scale = task.constant(per_actuator(task, cfg.scale)).expand(
-            task.num_envs, task.model.nu).contiguous()
+        self.scale = task.tiled(per_actuator(task, cfg.scale))
         self.offset: torch.Tensor | None = None
         self.commands = [f"ctrl = {s:g} * action" for s in self.scale[0].tolist()]
 

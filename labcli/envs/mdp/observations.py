@@ -16,7 +16,7 @@ if TYPE_CHECKING:
 
 
 def base_height(task: RobotTask, cfg: c.BaseHeight) -> torch.Tensor:
-    return task.robot.root_pos[:, 2:3]
+    return task.robot.root_height[:, None]
 
 
 def base_lin_vel(task: RobotTask, cfg: c.BaseLinVel) -> torch.Tensor:
@@ -36,19 +36,14 @@ def base_yaw_roll(task: RobotTask, cfg: c.BaseYawRoll) -> torch.Tensor:
 
 
 def base_up_proj(task: RobotTask, cfg: c.UpProj) -> torch.Tensor:
-    return -task.robot.projected_gravity_b[:, 2:3]
+    return task.robot.up_z[:, None]
 
 
 def to_target(task: RobotTask, target: tuple[float, float, float]) -> torch.Tensor:
-    """The horizontal vector from the root to `target`, `[n, 3]`. This and the values below
-    are computed once per state: observations, rewards and success share them."""
-
-    def compute() -> torch.Tensor:
-        vector = task.constant(target) - task.robot.root_pos
-        vector[:, 2] = 0.0
-        return vector
-
-    return task.robot.per_state(("to_target", target), compute)
+    """The horizontal vector (x, y) from the root to `target`, `[n, 2]`. This and the values
+    below are computed once per state: observations, rewards and success share them."""
+    return task.robot.per_state(("to_target", target), lambda: (
+        torch.sub(task.tiled(target[:2]), task.robot.root_xy)))
 
 
 def distance_to_target(task: RobotTask, target: tuple[float, float, float]) -> torch.Tensor:
@@ -57,7 +52,7 @@ def distance_to_target(task: RobotTask, target: tuple[float, float, float]) -> t
 
 
 def direction_to_target(task: RobotTask, target: tuple[float, float, float]) -> torch.Tensor:
-    """The horizontal unit vector from the root toward `target`, `[n, 3]`."""
+    """The horizontal unit vector (x, y) from the root toward `target`, `[n, 2]`."""
     return task.robot.per_state(("direction_to_target", target), lambda: (
         to_target(task, target) / distance_to_target(task, target).clamp_min(1e-12)[:, None]))
 
@@ -65,7 +60,7 @@ def direction_to_target(task: RobotTask, target: tuple[float, float, float]) -> 
 def heading_projection(task: RobotTask, target: tuple[float, float, float]) -> torch.Tensor:
     """The root's forward (x) axis projected on the horizontal direction to `target`, `[n]`."""
     return task.robot.per_state(("heading_projection", target), lambda: (
-        (task.robot.forward_w * direction_to_target(task, target)).sum(dim=1)))
+        (task.robot.forward_xy * direction_to_target(task, target)).sum(dim=1)))
 
 
 def base_heading_proj(task: RobotTask, cfg: c.HeadingProj) -> torch.Tensor:
@@ -73,8 +68,8 @@ def base_heading_proj(task: RobotTask, cfg: c.HeadingProj) -> torch.Tensor:
 
 
 def base_angle_to_target(task: RobotTask, cfg: c.AngleToTarget) -> torch.Tensor:
-    vector = to_target(task, cfg.target)
-    angle = torch.atan2(vector[:, 1], vector[:, 0]) - task.robot.yaw
+    x, y = to_target(task, cfg.target).unbind(1)
+    angle = torch.atan2(y, x) - task.robot.yaw
     return math.wrap_to_pi(angle)[:, None]
 
 

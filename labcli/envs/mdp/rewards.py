@@ -39,12 +39,12 @@ class progress_reward:  # noqa: N801 - a term, named as Isaac Lab's
 
 
 def upright_posture_bonus(task: RobotTask, cfg: c.Upright) -> torch.Tensor:
-    return (-task.robot.projected_gravity_b[:, 2] > cfg.threshold).to(task.ones.dtype)
+    return (task.robot.up_z > cfg.threshold).to(task.ones.dtype)
 
 
 def move_to_target_bonus(task: RobotTask, cfg: c.MoveToTarget) -> torch.Tensor:
-    heading = heading_projection(task, cfg.target)
-    return torch.where(heading > cfg.threshold, 1.0, heading / cfg.threshold)
+    # Past the threshold the quotient is over 1: capped, it is 1 there.
+    return (heading_projection(task, cfg.target) / cfg.threshold).clamp_max_(1.0)
 
 
 def action_l2(task: RobotTask, cfg: c.ActionL2) -> torch.Tensor:
@@ -62,9 +62,9 @@ def power_consumption(task: RobotTask, cfg: c.Energy) -> torch.Tensor:
 
 def joint_pos_limits_penalty_ratio(task: RobotTask, cfg: c.JointPosLimits) -> torch.Tensor:
     r = task.robot
-    scaled = r.joint_pos_normalized().abs()
-    violation = (scaled - cfg.threshold) / (1.0 - cfg.threshold) * r.gear_ratio_scaled
-    return (violation * (scaled > cfg.threshold)).sum(dim=1)
+    # Below the threshold the clamp makes it 0, as a mask would.
+    past = (r.joint_pos_normalized().abs() - cfg.threshold).clamp_min_(0.0)
+    return past.div_(1.0 - cfg.threshold).mul_(r.gear_ratio_scaled).sum(dim=1)
 
 
 class joint_torques_l2:  # noqa: N801

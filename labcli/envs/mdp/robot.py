@@ -36,6 +36,7 @@ class Robot:
         qa, da = int(model.jnt_qposadr[self.root_joint]), int(model.jnt_dofadr[self.root_joint])
         self.root_qpos, self.root_qvel = slice(qa, qa + 7), slice(da, da + 6)
         self.root_pos = sim.qpos[:, qa:qa + 3]
+        self.root_xy, self.root_height = self.root_pos[:, :2], self.root_pos[:, 2]
         self.root_quat = sim.qpos[:, qa + 3:qa + 7]
         # MuJoCo's free joint: linear velocity in the world frame, angular in the body's.
         self.root_lin_vel_w = sim.qvel[:, da:da + 3]
@@ -90,6 +91,11 @@ class Robot:
         self.root_lin_vel_b = torch.empty(n, 3, dtype=dtype, device=dev)
         self.projected_gravity_b = torch.empty(n, 3, dtype=dtype, device=dev)
         self.forward_w = r[:, :, 0]  # the root's x axis in the world: a view of R
+        self.forward_xy = r[:, :2, 0]
+        # The root's z axis projected on the world's up (R22, -projected_gravity_b[:, 2]): the
+        # cosine of its tilt.
+        self.up_z = r[:, 2, 2]
+        self._r00, self._r10, self._r20, self._r21 = r[:, 0, 0], r[:, 1, 0], r[:, 2, 0], r[:, 2, 1]
         # The views `update` reads and writes, taken once: each costs as much as an op on it.
         q = self.root_quat
         self._q_col, self._q_row = q[:, :, None], q[:, None, :]
@@ -104,18 +110,15 @@ class Robot:
     # once per state when a term reads them: most tasks read one or none.
     @property
     def roll(self) -> torch.Tensor:
-        r = self.rotation
-        return self.per_state("roll", lambda: torch.atan2(r[:, 2, 1], r[:, 2, 2]))
+        return self.per_state("roll", lambda: torch.atan2(self._r21, self.up_z))
 
     @property
     def pitch(self) -> torch.Tensor:
-        r = self.rotation
-        return self.per_state("pitch", lambda: torch.asin(r[:, 2, 0].clamp(-1.0, 1.0)).neg_())
+        return self.per_state("pitch", lambda: torch.asin(self._r20.clamp(-1.0, 1.0)).neg_())
 
     @property
     def yaw(self) -> torch.Tensor:
-        r = self.rotation
-        return self.per_state("yaw", lambda: torch.atan2(r[:, 1, 0], r[:, 0, 0]))
+        return self.per_state("yaw", lambda: torch.atan2(self._r10, self._r00))
 
     @staticmethod
     def _root_joint(model: mujoco.MjModel, root_body: str | None) -> int:

@@ -18,14 +18,14 @@ class moved_toward_target:  # noqa: N801
 
     def __init__(self, task: RobotTask, cfg: c.MovedTowardTarget):
         self.task, self.cfg = task, cfg
-        self.start = task.robot.root_pos.clone()
+        self.start = task.robot.root_xy.clone()
 
     def reset(self, mask: torch.Tensor) -> None:
-        torch.where(mask[:, None], self.task.robot.root_pos, self.start, out=self.start)
+        torch.where(mask[:, None], self.task.robot.root_xy, self.start, out=self.start)
 
     def __call__(self) -> torch.Tensor:
-        moved = (self.task.robot.root_pos - self.start) * direction_to_target(self.task,
-                                                                              self.cfg.target)
+        moved = (self.task.robot.root_xy - self.start) * direction_to_target(self.task,
+                                                                             self.cfg.target)
         return moved.sum(dim=1) >= self.cfg.distance
 
 

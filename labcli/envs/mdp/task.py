@@ -216,6 +216,17 @@ class RobotTask(Task):
                 values, dtype=self.sim.qpos.dtype, device=self.sim.qpos.device)
         return made
 
+    def tiled(self, values: Sequence[float]) -> torch.Tensor:
+        """`values` as a row per env, `[num_envs, len(values)]` (a `constant`, made once): an
+        op with it runs as one flat loop, where broadcasting a short row steps through the envs
+        one by one."""
+        key = ("tiled", *values)
+        made = self._constants.get(key)
+        if made is None:
+            made = self._constants[key] = self.constant(values).expand(
+                self.num_envs, len(values)).contiguous()
+        return made
+
     def _names(self, built: Built) -> list[str]:
         width = built.compute().shape[1]
         if built.names is not None:
@@ -235,8 +246,7 @@ class ObservationPost:
 
     def __init__(self, task: RobotTask, terms: list[Any], widths: list[int]):
         def column(values: list[float]) -> torch.Tensor:
-            per_column = [v for v, w in zip(values, widths, strict=True) for _ in range(w)]
-            return task.constant(per_column).expand(task.num_envs, len(per_column)).contiguous()
+            return task.tiled([v for v, w in zip(values, widths, strict=True) for _ in range(w)])
 
         self.task = task
         self.raw = torch.empty(task.num_envs, sum(widths), dtype=task.ones.dtype,

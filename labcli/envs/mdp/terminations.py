@@ -16,13 +16,13 @@ if TYPE_CHECKING:
 
 
 def root_height_below_minimum(task: RobotTask, cfg: c.BaseHeightBelow) -> torch.Tensor:
-    return task.robot.root_pos[:, 2] < cfg.minimum_height
+    return task.robot.root_height < cfg.minimum_height
 
 
 def bad_orientation(task: RobotTask, cfg: c.BadOrientation) -> torch.Tensor:
     """Tilted past the limit: the angle between the root's z axis and the world's up is
     acos(-g_z) in the root's frame, compared as a cosine (no acos per step)."""
-    return -task.robot.projected_gravity_b[:, 2] < math.cos(cfg.limit_angle)
+    return task.robot.up_z < math.cos(cfg.limit_angle)
 
 
 class illegal_contact:  # noqa: N801 - a term, named as Isaac Lab's
