@@ -308,6 +308,28 @@ def test_envs_draw_the_same_numbers_in_shards_and_in_one_batch(total, block):
         EnvRandom(30, "cpu", first=1, total=64)
 
 
+def test_only_for_draws_for_the_blocks_in_its_mask_and_says_whether_there_are_any():
+    rng = EnvRandom(8, "cpu")  # blocks of one env
+    rng.manual_seed(1)
+    with rng.only_for(torch.zeros(8, dtype=torch.bool)) as some:
+        assert not some
+    mask = torch.zeros(8, dtype=torch.bool)
+    mask[[2, 5]] = True
+    before = rng.get_state()
+    with rng.only_for(mask) as some:
+        assert some
+        drawn = rng.uniform_(torch.full((8, 1), -1.0))
+        with rng.only_for(mask.roll(1)):  # inside another: the outer selection comes back
+            pass
+        again = rng.uniform_(torch.full((8, 1), -1.0))
+    after = rng.get_state()
+    assert [not torch.equal(a, b) for a, b in zip(before, after, strict=True)] == \
+        [b in (2, 5) for b in range(8)]
+    assert (drawn[mask] >= 0).all() and (drawn[~mask] == -1).all()
+    assert (again[~mask] == -1).all()
+    assert (rng.rand(1) >= 0).all()  # after it, every block draws
+
+
 def test_the_shard_count_follows_threads_cores_and_envs(monkeypatch):
     monkeypatch.setattr(shards_module, "cores", lambda: 16)
     assert [shard_count(4096, t) for t in (1, 2, 3, 4, 7, 8, 12, 16, 32)] == \

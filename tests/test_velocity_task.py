@@ -108,6 +108,29 @@ def test_commands_are_drawn_again_when_their_time_runs_out():
     env.close()
 
 
+def test_on_the_cpu_only_the_blocks_whose_command_or_push_is_due_draw():
+    """As resets do, command resampling and pushes draw only for the blocks of envs (here one
+    env each) whose time is up: what a block draws does not depend on its neighbours' timers,
+    in one process or in shards, and a step where none is due draws nothing."""
+    env = go1(8)  # no observation noise; commands and pushes 10 s or more away
+    command, push = env.task.command("base_velocity"), terms(env)["push_robot"].made
+
+    def blocks_drawn_in_a_step() -> list[int]:
+        before = env.get_state()["generator"]
+        env.step(torch.zeros(8, 12))
+        after = env.get_state()["generator"]
+        return [b for b in range(8) if not torch.equal(before[b], after[b])]
+
+    assert blocks_drawn_in_a_step() == []
+    command.time_left[3] = 0.0
+    assert blocks_drawn_in_a_step() == [3]
+    assert command.time_left[3] > 0.0  # drawn anew
+    push.time_left[5] = 0.0
+    assert blocks_drawn_in_a_step() == [5]
+    assert blocks_drawn_in_a_step() == []
+    env.close()
+
+
 def test_tracking_rewards_are_exp_kernels_of_the_error_in_the_base_frame():
     env = go1(4)
     t, r = terms(env), env.task.robot
