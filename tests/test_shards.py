@@ -297,9 +297,8 @@ def test_envs_draw_the_same_numbers_in_shards_and_in_one_batch(total, block):
     # Blocks with no env in the reset mask neither draw nor advance.
     mask = torch.zeros(half, dtype=torch.bool)
     mask[0] = True  # in the shard's first block
-    second.draw_only_for(mask)
-    partial = second.uniform_(torch.full((half, 3), -1.0))
-    second.draw_only_for(None)
+    with second.only_for(mask):
+        partial = second.uniform_(torch.full((half, 3), -1.0))
     assert (partial[block:] == -1).all() and (partial[:block] >= 0).all()
     assert torch.equal(second.rand(3)[block:], whole.rand(3)[half + block:])
     normal = whole.normal_(torch.empty(total, 2))

@@ -41,37 +41,28 @@ class EnvRandom:
         self._equal = len({r.stop - r.start for r in self._rows}) == 1
         self._drawing = [True] * len(self.blocks)
 
-    def draw_only_for(self, mask: torch.Tensor | None) -> bool:
-        """Until called with None, draws leave out (and their generators keep) the blocks with
-        no env in `mask`: what a block draws for a reset then depends on its own envs only, not
-        on whether others, in its batch or not, reset in the same step. Whether any env is in
-        `mask`; if none, nothing changes. On the CPU (it reads the mask on the host)."""
-        if mask is None:
-            self._drawing = [True] * len(self.blocks)
-            return True
-        if self._equal:  # one op, not a cumulative sum: this runs on most steps
-            drawing = mask.view(len(self._rows), -1).any(dim=1).tolist()
-        else:
-            ended = mask.cumsum(0)[self._ends - 1]
-            drawing = torch.diff(ended, prepend=ended.new_zeros(1)).gt(0).tolist()
-        if not any(drawing):
-            return False
-        self._drawing = drawing
-        return True
-
     @contextlib.contextmanager
     def only_for(self, mask: torch.Tensor) -> Iterator[bool]:
         """Draws inside are for the envs in `mask`, and it says whether there are any: work
         for none (a reset, a resample) may be skipped. On the CPU, reading the mask is free, and
-        the blocks with no env in it neither draw nor advance (`draw_only_for`). On a GPU it
-        says yes and every block draws: reading the mask would wait for the device and break
-        the step's CUDA graph."""
+        the blocks with no env in it neither draw nor advance: what a block draws then depends
+        on its own envs only, not on whether others, in its batch or not, are in the mask. On a
+        GPU it says yes and every block draws: reading the mask would wait for the device and
+        break the step's CUDA graph."""
         if self.device.type != "cpu":
             yield True
             return
-        drawing = self._drawing
+        if self._equal:  # one op, not a cumulative sum: this runs on most steps
+            blocks = mask.view(len(self._rows), -1).any(dim=1).tolist()
+        else:
+            ended = mask.cumsum(0)[self._ends - 1]
+            blocks = torch.diff(ended, prepend=ended.new_zeros(1)).gt(0).tolist()
+        if not any(blocks):
+            yield False
+            return
+        drawing, self._drawing = self._drawing, blocks
         try:
-            yield self.draw_only_for(mask)
+            yield True
         finally:
             self._drawing = drawing
 
