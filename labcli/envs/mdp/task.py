@@ -210,21 +210,20 @@ class RobotTask(Task):
         value): a tensor built from Python numbers in the step would be a host-to-device copy
         on a GPU, which a CUDA graph cannot capture. Do not write into it."""
         key = tuple(values) if isinstance(values, Sequence) else values
-        made = self._constants.get(key)
-        if made is None:
-            made = self._constants[key] = torch.as_tensor(
-                values, dtype=self.sim.qpos.dtype, device=self.sim.qpos.device)
-        return made
+        return self._kept(key, lambda: torch.as_tensor(
+            values, dtype=self.sim.qpos.dtype, device=self.sim.qpos.device))
 
     def tiled(self, values: Sequence[float]) -> torch.Tensor:
         """`values` as a row per env, `[num_envs, len(values)]` (a `constant`, made once): an
         op with it runs as one flat loop, where broadcasting a short row steps through the envs
         one by one."""
-        key = ("tiled", *values)
+        return self._kept(("tiled", *values), lambda: self.constant(values).expand(
+            self.num_envs, len(values)).contiguous())
+
+    def _kept(self, key: object, make: Callable[[], torch.Tensor]) -> torch.Tensor:
         made = self._constants.get(key)
         if made is None:
-            made = self._constants[key] = self.constant(values).expand(
-                self.num_envs, len(values)).contiguous()
+            made = self._constants[key] = make()
         return made
 
     def _names(self, built: Built) -> list[str]:
