@@ -44,11 +44,21 @@ class UniformVelocityCommand:
         self._robot_lin_xy = self.robot.root_lin_vel_b[:, :2]
         self._robot_yaw_rate = self.robot.root_ang_vel_b[:, 2]
         self._errors_lin, self._errors_yaw = self.errors.unbind(1)
-        self._lin_error = like.new_empty(n, 2)
         self._standing = self.standing_env[:, None]
 
     def __call__(self) -> torch.Tensor:
         return self.command
+
+    def lin_vel_error(self) -> torch.Tensor:
+        """The command's planar velocity minus the base's, `[n, 2]`, once per state: the
+        tracking reward and the episode's error both read it."""
+        return self.robot.per_state(("lin_vel_error", self), lambda: (
+            torch.sub(self._lin_xy, self._robot_lin_xy)))
+
+    def yaw_rate_error(self) -> torch.Tensor:
+        """The command's yaw rate minus the base's, `[n]`, once per state."""
+        return self.robot.per_state(("yaw_rate_error", self), lambda: (
+            torch.sub(self._yaw_rate, self._robot_yaw_rate)))
 
     def reset(self, mask: torch.Tensor) -> None:
         self.errors.masked_fill_(mask[:, None], 0.0)
@@ -60,9 +70,8 @@ class UniformVelocityCommand:
         self._steer(math.yaw_of(self.robot.root_quat))
 
     def after_step(self) -> None:
-        torch.sub(self._lin_xy, self._robot_lin_xy, out=self._lin_error)
-        self._errors_lin.add_(torch.linalg.vector_norm(self._lin_error, dim=1))
-        self._errors_yaw.add_(torch.sub(self._yaw_rate, self._robot_yaw_rate).abs_())
+        self._errors_lin.add_(torch.linalg.vector_norm(self.lin_vel_error(), dim=1))
+        self._errors_yaw.add_(self.yaw_rate_error().abs())
         self.steps.add_(1.0)
         torch.div(self.errors, self.steps[:, None], out=self.mean_errors)
         self.time_left.sub_(self.task.step_dt)

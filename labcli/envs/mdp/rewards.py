@@ -112,22 +112,21 @@ def ang_vel_xy_l2(task: RobotTask, cfg: c.AngVelXYL2) -> torch.Tensor:
 
 class track_lin_vel_xy_exp:  # noqa: N801
     def __init__(self, task: RobotTask, cfg: c.TrackLinVelXYExp):
-        self.command, self.robot = task.command(cfg.command), task.robot
+        self.command = task.command(cfg.command)
         self.inv_var = 1.0 / cfg.std**2
 
     def __call__(self) -> torch.Tensor:
-        error = (self.command.command[:, :2] - self.robot.root_lin_vel_b[:, :2]).square()
+        error = self.command.lin_vel_error().square()
         return torch.exp(error.sum(dim=1).mul_(-self.inv_var))
 
 
 class track_ang_vel_z_exp:  # noqa: N801
     def __init__(self, task: RobotTask, cfg: c.TrackAngVelZExp):
-        self.command, self.robot = task.command(cfg.command), task.robot
+        self.command = task.command(cfg.command)
         self.inv_var = 1.0 / cfg.std**2
 
     def __call__(self) -> torch.Tensor:
-        error = (self.command.command[:, 2] - self.robot.root_ang_vel_b[:, 2]).square()
-        return torch.exp(error.mul_(-self.inv_var))
+        return torch.exp(self.command.yaw_rate_error().square().mul_(-self.inv_var))
 
 
 class feet_air_time:  # noqa: N801
