@@ -8,7 +8,7 @@ Per task and env count, env-steps/s (random actions, resets included) of
   tensors out (`lab bench`'s rows);
 - rollout: raw `mujoco.rollout` of what the env steps (its models, states and the controls its
   actuation makes of random actions) with the same decimation and threads, no task code
-  (`labcli.runs.bench.rollout_rate`, as `lab bench`);
+  (`labcli.runs.bench.rollout_steppers`, timed in turns with lab, as `lab bench`);
 - gym-sync: gymnasium's `Ant-v5` / `Humanoid-v5` in a `SyncVectorEnv`, what users run today
   (tasks gymnasium has no counterpart of, as go1-flat, go without).
   Its env step is 5 physics steps of 0.01 s (Ant) or 0.003 s (Humanoid, RK4 on both) against

@@ -21,7 +21,9 @@ def bench(
     framework: Annotated[str | None, typer.Option(
         "--framework", "-f", help="Also time a short training run with this framework.",
         autocompletion=complete_framework)] = None,
-    seconds: Annotated[float, typer.Option(help="Seconds per measurement.")] = 3.0,
+    seconds: Annotated[float, typer.Option(
+        help="Seconds per measurement (cpu backend: the env and MuJoCo's rollout take turns in "
+             "4 windows of a quarter of it each).")] = 3.0,
     threads: Annotated[str | None, typer.Option(
         help="cpu backend: comma-separated counts of threads that step the physics, each "
              "measured beside MuJoCo's rollout on as many [the cores this process may use]."

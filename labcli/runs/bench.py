@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import io
 import itertools
+import statistics
 import tempfile
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -28,6 +30,8 @@ from labcli.runs import config, training
 from labcli.runs.session import check_device
 
 TRAIN_ITERATIONS = 5
+# The cpu backend and its rollout reference take turns in this many windows (`beside_rollout`).
+WINDOWS = 4
 
 
 @dataclass
@@ -60,12 +64,10 @@ def rate(step: Callable[[], int], seconds: float, sync: Callable[[], None] = lam
     return count / (time.perf_counter() - start)
 
 
-def env_rate(env: LabVecEnv | ShardedVecEnv, seconds: float, banked: int = 16) -> float:
-    """The env as a learner sees it: uniform random actions in (`banked` sets drawn beforehand,
-    in turn, as `rollout_rate`'s controls are: drawing them is the learner's work, not the
-    env's), torch tensors out, and on the CPU one torch thread, as lab's learners run it
-    (`one_torch_thread`). Measured on 16 cores at 4,096 cartpole envs: 293k env-steps/s with
-    torch's 16 threads, 699k with one."""
+def env_stepper(env: LabVecEnv | ShardedVecEnv, banked: int = 16) -> Callable[[], int]:
+    """One step of the env as a learner sees it, from a reset: uniform random actions in
+    (`banked` sets drawn beforehand, in turn, as the rollout's controls are: drawing them is the
+    learner's work, not the env's), torch tensors out."""
     env.reset(seed=0)
     gen = torch.Generator(env.device).manual_seed(0)
     shape = (env.num_envs, env.single_action_space.shape[0])
@@ -76,22 +78,30 @@ def env_rate(env: LabVecEnv | ShardedVecEnv, seconds: float, banked: int = 16) -
         env.step(next(turn))
         return env.num_envs
 
+    return step
+
+
+def env_rate(env: LabVecEnv | ShardedVecEnv, seconds: float, banked: int = 16) -> float:
+    """Env-steps/s of `env_stepper`, on the CPU on one torch thread, as lab's learners run it
+    (`one_torch_thread`). Measured on 16 cores at 4,096 cartpole envs: 293k env-steps/s with
+    torch's 16 threads, 699k with one."""
     sync = torch.cuda.synchronize if env.device.type == "cuda" else (lambda: None)
     with one_torch_thread(str(env.device)):
-        return rate(step, seconds, sync)
+        return rate(env_stepper(env, banked), seconds, sync)
 
 
-def rollout_rate(env: LabVecEnv, seconds: float, banked: int = 16) -> float:
-    """The limit of the cpu backend: env-steps/s of bare `mujoco.rollout` stepping what `env`
-    steps, without it: the env's own models (sensors included; one per env where the task
-    varies the physics per env), from the env's current states, `decimation` physics steps per
-    env step with the controls the task's actuation makes of uniform random actions (`banked`
-    sets drawn beforehand, in turn), on the env's threads (MuJoCo's pool, as the cpu backend on
-    more than two); the state copied out, no task code, no resets but of diverged envs.
+@contextlib.contextmanager
+def rollout_steppers(env: LabVecEnv, banked: int = 16) -> Iterator[list[Callable[[], int]]]:
+    """The limit of the cpu backend: steps of bare `mujoco.rollout` of what `env` steps, without
+    it: the env's own models (sensors included; one per env where the task varies the physics
+    per env), from the env's current states, `decimation` physics steps per env step with the
+    controls the task's actuation makes of uniform random actions (`banked` sets drawn
+    beforehand, in turn), on the env's threads (MuJoCo's pool, as the cpu backend on more than
+    two); the state copied out, no task code, no resets but of diverged envs.
 
-    The faster of two chunkings, each timed for `seconds`: one chunk of envs per thread, and
-    MuJoCo's default (ten per thread), which balances unequal cores (a 16-core host: 0.99–1.15
-    of one per thread; a 2-core VM: 0.85)."""
+    One stepper per chunking, whose faster one is the reference: one chunk of envs per thread,
+    and MuJoCo's default (ten per thread), which balances unequal cores (a 16-core host:
+    0.99–1.15 of one per thread; a 2-core VM: 0.85)."""
     sim, n, nstep = env.sim, env.num_envs, env.cfg.decimation
     model, nthread = sim.model, sim.nthread
     gen = torch.Generator().manual_seed(0)
@@ -103,14 +113,11 @@ def rollout_rate(env: LabVecEnv, seconds: float, banked: int = 16) -> float:
     datas = [mujoco.MjData(model) for _ in range(max(nthread, 1))]
     initial = np.empty(mujoco.mj_stateSize(model, full))
     mujoco.mj_getState(model, datas[0], initial, full)
-    start = sim.physics_state()
-    state = start.copy()
+    state = sim.physics_state()
     runner = rollout.Rollout(nthread=nthread if nthread > 1 else 0)
     states = np.empty((n, nstep, state.shape[1]))
     sensors = np.empty((n, nstep, model.nsensordata))  # recorded, as the backend does
     turn = itertools.cycle(controls)
-    # One chunk a thread; on more threads than one also MuJoCo's default chunking (None).
-    chunk_sizes = (-(-n // len(datas)), *((None,) if len(datas) > 1 else ()))
 
     def step(chunk_size: int | None) -> int:
         runner.rollout(sim.models, datas, state, next(turn), nstep=nstep, skip_checks=True,
@@ -119,14 +126,41 @@ def rollout_rate(env: LabVecEnv, seconds: float, banked: int = 16) -> float:
         state[~np.isfinite(state).all(axis=1)] = initial
         return n
 
-    rates = []
+    # One chunk a thread; on more threads than one also MuJoCo's default chunking (None).
+    chunk_sizes = (-(-n // len(datas)), *((None,) if len(datas) > 1 else ()))
     try:
-        for chunk_size in chunk_sizes:
-            state[:] = start  # each from the env's states
-            rates.append(rate(functools.partial(step, chunk_size), seconds))
+        yield [functools.partial(step, chunk_size) for chunk_size in chunk_sizes]
     finally:
         runner.close()
-    return max(rates)
+
+
+def rollout_rate(env: LabVecEnv, seconds: float, banked: int = 16) -> float:
+    """Env-steps/s of `rollout_steppers`' faster chunking, each timed for `seconds`."""
+    with rollout_steppers(env, banked) as steppers:
+        return max(rate(step, seconds) for step in steppers)
+
+
+def beside_rollout(env: LabVecEnv | ShardedVecEnv, reference: LabVecEnv, seconds: float,
+                   windows: int = WINDOWS) -> tuple[float, float]:
+    """Env-steps/s of the cpu backend's `env` and of the rollout of what it steps (`reference`,
+    which takes the states `env` reached in its first window: a robot's contacts cost more than
+    its first pose), each a median over `windows` windows in turn of `seconds / windows`. Timed
+    in turn, not one after the other: on a shared 16-core host a core's speed moved within
+    seconds (one shard's torch code took 235 µs a step in one run and 485 µs in the next), and
+    the ratio of two runs apart measured that drift as much as lab."""
+    window = seconds / windows
+    with one_torch_thread("cpu"):
+        step = env_stepper(env)
+        lab = [rate(step, window)]
+        reference.set_state(env.get_state())
+        with rollout_steppers(reference) as steppers:
+            pool: list[list[float]] = [[] for _ in steppers]
+            for turn in range(windows):
+                if turn:
+                    lab.append(rate(step, window))
+                for rates, pooled in zip(pool, steppers, strict=True):
+                    rates.append(rate(pooled, window))
+    return statistics.median(lab), max(statistics.median(rates) for rates in pool)
 
 
 def train_rate(task: str, framework: str, num_envs: int, backend: str | None,
@@ -162,7 +196,8 @@ def bench(task: str, num_envs: Sequence[int], *, backend: str | None = None,
           seconds: float = 3.0, threads: Sequence[int] = ()) -> list[BenchRow]:
     """A row per thread count (cpu backend; none given: the cores this process may use) and env
     count, in that order: each env measured beside the rollout of what it steps on as many
-    threads, so that the ratio says how much of the cores' physics lab keeps."""
+    threads (in turns, `beside_rollout`), so that the ratio says how much of the cores' physics
+    lab keeps."""
     spec = registry.get_task(task)
     if framework is not None:
         registry.get_framework(framework)  # an unknown name fails before any measuring
@@ -184,21 +219,19 @@ def bench(task: str, num_envs: Sequence[int], *, backend: str | None = None,
     for overrides, cfg in runs:
         env = make_env(spec, cfg, backend=backend, device=device)
         try:
-            row = BenchRow(task, env.backend, cfg.num_envs, env_rate(env, seconds))
-            reached = env.get_state() if row.backend == "cpu" else None
+            if env.backend == "cpu":
+                # On MuJoCo's pool of the env's threads, whether the env steps in shards or not.
+                reference = LabVecEnv(spec, cfg, backend="cpu")
+                try:
+                    lab, pool = beside_rollout(env, reference, seconds)
+                    row = BenchRow(task, "cpu", cfg.num_envs, lab, threads=reference.sim.nthread,
+                                   rollout_steps_per_s=pool, ratio_to_rollout=lab / pool)
+                finally:
+                    reference.close()
+            else:
+                row = BenchRow(task, env.backend, cfg.num_envs, env_rate(env, seconds))
         finally:
             env.close()
-        if reached is not None:
-            # On MuJoCo's pool of the env's threads, whether the env steps in shards or not, from
-            # the states the env reached (a robot's contacts cost more than its first pose).
-            reference = LabVecEnv(spec, cfg, backend="cpu")
-            try:
-                reference.set_state(reached)
-                row.threads = reference.sim.nthread
-                row.rollout_steps_per_s = rollout_rate(reference, seconds)
-            finally:
-                reference.close()
-            row.ratio_to_rollout = row.env_steps_per_s / row.rollout_steps_per_s
         if framework is not None:
             row.framework = framework
             row.train_steps_per_s = train_rate(task, framework, cfg.num_envs, backend, device,
