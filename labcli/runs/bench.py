@@ -134,12 +134,6 @@ def rollout_steppers(env: LabVecEnv, banked: int = 16) -> Iterator[list[Callable
         runner.close()
 
 
-def rollout_rate(env: LabVecEnv, seconds: float, banked: int = 16) -> float:
-    """Env-steps/s of `rollout_steppers`' faster chunking, each timed for `seconds`."""
-    with rollout_steppers(env, banked) as steppers:
-        return max(rate(step, seconds) for step in steppers)
-
-
 def beside_rollout(env: LabVecEnv | ShardedVecEnv, reference: LabVecEnv, seconds: float,
                    windows: int = WINDOWS) -> tuple[float, float]:
     """Env-steps/s of the cpu backend's `env` and of the rollout of what it steps (`reference`,
