@@ -33,7 +33,7 @@ from labcli.envs.sim import chunks
 from labcli.plugins import registry
 from labcli.runs.bench import beside_rollout
 
-RING = 16384  # steps kept per process (a run's first ones are overwritten past it)
+RING = 16384  # steps kept per process (past it, a run's first ones are overwritten)
 # A step's columns per process: its step began, its own physics was done, its step ended.
 BEGAN, PHYSICS, ENDED = 0, 1, 2
 SKIP = 100  # the first steps of a run, left out (the workers' first wake-ups)
@@ -59,7 +59,8 @@ def _end_init(self, env, buffers, shard, index) -> None:
 
 def _row() -> np.ndarray:
     index = _process["index"]
-    return _process["trace"][_process["steps"][index] % RING, index]
+    trace = _process["trace"]  # its length, not RING: the process that made it read RING
+    return trace[_process["steps"][index] % len(trace), index]
 
 
 def _end_step(self) -> None:
@@ -108,9 +109,11 @@ def traced_rates(env: ShardedVecEnv, reference: LabVecEnv,
 
     env.step = step
     lab, pool = beside_rollout(env, reference, seconds)
-    steps = min(len(caller), RING)
-    trace = env._buffers["trace"].numpy()[SKIP:steps]
-    began, ended = (np.array(c) for c in zip(*caller[SKIP:steps], strict=True))
+    # Step i is in row i % rows: past that many steps only the last ones are there.
+    rows = env._buffers["trace"].numpy()
+    first = max(SKIP, len(caller) - len(rows))
+    trace = rows[np.arange(first, len(caller)) % len(rows)]
+    began, ended = (np.array(c) for c in zip(*caller[first:], strict=True))
     physics_done = trace[:, :, PHYSICS].max(axis=1) - began
     torch_code = trace[:, :, ENDED] - trace[:, :, PHYSICS]
 
