@@ -36,6 +36,7 @@ class EnvRandom:
             raise ValueError(f"envs [{first}, {first + num_envs}) of {total} are not whole blocks")
         self._rows = [slice(bounds[b] - first, bounds[b + 1] - first) for b in self.blocks]
         self.num_envs, self.device = num_envs, torch.device(device)
+        self._on_cpu = self.device.type == "cpu"  # asked on every `only_for`
         self.generators = [torch.Generator(device) for _ in self.blocks]
         self._ends = torch.tensor([r.stop for r in self._rows])
         self._equal = len({r.stop - r.start for r in self._rows}) == 1
@@ -49,7 +50,7 @@ class EnvRandom:
         on its own envs only, not on whether others, in its batch or not, are in the mask. On a
         GPU it says yes and every block draws: reading the mask would wait for the device and
         break the step's CUDA graph."""
-        if self.device.type != "cpu":
+        if not self._on_cpu:
             yield True
             return
         if self._equal:  # one op, not a cumulative sum: this runs on most steps
