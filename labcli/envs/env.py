@@ -181,8 +181,10 @@ class LabVecEnv(gym.vector.VectorEnv):
     def step_into(self, actions: torch.Tensor, out: StepOutputs) -> None:
         """`step`, its outputs written into `out` (an env shard's rows of the shared buffers)
         rather than into new tensors: each output is an op's `out=`, where copying the step's
-        outputs there would be one op more for each."""
-        self._step(checked_actions(actions, self.action_space.shape, self.device), out)
+        outputs there would be one op more for each. `actions` are taken as they are: a float32
+        `[num_envs, actions]` tensor on the env's device, which the sharded env checked before
+        it copied them into the shared buffer."""
+        self._step(actions, out)
 
     def close_extras(self, **kwargs: Any) -> None:
         # VectorEnv.close calls this once, then sets `closed`.
