@@ -16,7 +16,8 @@ c) time until `lab train --task cartpole --framework F` first logs Metrics/succe
    (seconds until mean return 950 on InvertedPendulum-v5: another criterion, so a rough ratio).
 d) with --threads: lab's env-steps/s of each task at each thread count beside raw
    `mujoco.rollout` of what the env steps on as many threads (`lab bench --threads`), and with
-   --train the training steps/s of cartpole with that framework at each thread count.
+   --train the training steps/s of cartpole with that framework at each thread count; with
+   --steps eager,compiled the env step eager and compiled (`env.compile`) in turn.
 
 Machines are noisy: each throughput figure is the median of --repeats interleaved runs, and the
 load average is printed before and after. Nothing here asserts a timing; it prints figures.
@@ -25,6 +26,7 @@ load average is printed before and after. Nothing here asserts a timing; it prin
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import os
 import platform
@@ -272,17 +274,20 @@ def profile_table(num_envs: int, parts: dict[str, float]) -> None:
 
 # Threads --------------------------------------------------------------------------------------
 def thread_rates(tasks: list[str], envs: list[int], threads: list[int], seconds: float,
-                 repeats: int, framework: str | None) -> dict[tuple[str, int, int], dict]:
-    """Medians by (task, threads, N) of lab's and the rollout's env-steps/s and their ratio,
-    the repeats interleaved; with `framework`, cartpole's training steps/s too."""
-    runs: dict[tuple[str, int, int], dict[str, list[float]]] = defaultdict(
+                 repeats: int, framework: str | None, steps: list[str]
+                 ) -> dict[tuple[str, str, int, int], dict]:
+    """Medians by (task, step, threads, N) of lab's and the rollout's env-steps/s and their
+    ratio, the repeats interleaved; `steps`: "eager" and/or "compiled" (`env.compile`); with
+    `framework`, cartpole's training steps/s too."""
+    runs: dict[tuple[str, str, int, int], dict[str, list[float]]] = defaultdict(
         lambda: defaultdict(list))
     for repeat in range(repeats):
         console.print(f"  threads, repeat {repeat + 1}/{repeats}", highlight=False)
-        for task in tasks:
+        for task, step in itertools.product(tasks, steps):
             for row in bench(task, envs, backend="cpu", seconds=seconds, threads=threads,
-                             framework=framework if task == TASK else None):
-                figures = runs[task, row.threads, row.num_envs]
+                             framework=framework if task == TASK else None,
+                             overrides=[f"env.compile={step == 'compiled'}"]):
+                figures = runs[task, step, row.threads, row.num_envs]
                 figures["lab"].append(row.env_steps_per_s)
                 figures["rollout"].append(row.rollout_steps_per_s)
                 figures["ratio"].append(row.ratio_to_rollout)
@@ -292,14 +297,14 @@ def thread_rates(tasks: list[str], envs: list[int], threads: list[int], seconds:
             for key, figures in runs.items()}
 
 
-def thread_table(rates: dict[tuple[str, int, int], dict], framework: str | None) -> None:
+def thread_table(rates: dict[tuple[str, str, int, int], dict], framework: str | None) -> None:
     table = Table(title="d) env-steps/s by physics threads, lab beside mujoco.rollout (median)")
-    for col in ("task", "threads", "N", "lab", "rollout", "lab / rollout"):
+    for col in ("task", "step", "threads", "N", "lab", "rollout", "lab / rollout"):
         table.add_column(col, justify="right")
     if framework:
         table.add_column(f"{framework} training steps/s", justify="right")
-    for (task, threads, n), r in rates.items():
-        cells = [task, str(threads), str(n), fmt(r["lab"]), fmt(r["rollout"]),
+    for (task, step, threads, n), r in rates.items():
+        cells = [task, step, str(threads), str(n), fmt(r["lab"]), fmt(r["rollout"]),
                  f"{r['ratio']:.2f}"]
         if framework:
             cells.append(fmt(r.get("train")))
@@ -401,6 +406,8 @@ def main() -> None:
                    help="only break lab's env step down by part at N envs")
     p.add_argument("--threads", help="only d): these physics thread counts, e.g. 2,4,8,16")
     p.add_argument("--tasks", default=TASK, help="d)'s tasks, e.g. cartpole,ant,humanoid")
+    p.add_argument("--steps", default="eager", help="d): the env step eager, compiled "
+                   "(env.compile) or both in turn: eager,compiled")
     p.add_argument("--train", metavar="FRAMEWORK", help="d): also cartpole's training steps/s")
     a = p.parse_args()
     if a.train and TASK not in a.tasks.split(","):
@@ -412,9 +419,10 @@ def main() -> None:
     results: dict = {"command": " ".join(sys.argv), "machine": header()}
     if a.threads:
         rates = thread_rates(a.tasks.split(","), envs, [int(t) for t in a.threads.split(",")],
-                             a.seconds, a.repeats, a.train)
+                             a.seconds, a.repeats, a.train, a.steps.split(","))
         thread_table(rates, a.train)
-        results["threads"] = {f"{task}@{t}@{n}": r for (task, t, n), r in rates.items()}
+        results["threads"] = {f"{task}@{step}@{t}@{n}": r
+                              for (task, step, t, n), r in rates.items()}
         finish(results, a.json)
         return
 

@@ -7,7 +7,7 @@ from typing import Annotated
 
 import typer
 
-from labcli.commands.common import JsonOpt, TaskArg, complete_framework, out, table
+from labcli.commands.common import JsonOpt, SetOpt, TaskArg, complete_framework, out, table
 from labcli.errors import LabError
 
 
@@ -28,6 +28,7 @@ def bench(
         help="cpu backend: comma-separated counts of threads that step the physics, each "
              "measured beside MuJoCo's rollout on as many [the cores this process may use]."
     )] = None,
+    set_: SetOpt = None,
     as_json: JsonOpt = False,
 ) -> None:
     """Measure env-steps/s of a task (random actions, resets included) and, with --framework,
@@ -35,13 +36,14 @@ def bench(
 
     Example: lab bench --task cartpole --num-envs 16,256,1024 --framework rsl_rl
              lab bench --task humanoid --num-envs 1024,4096 --threads 2,4,8,16
+             lab bench --task ant --num-envs 1024 --threads 16 --set env.compile=true
     """
     counts = _integers("--num-envs", num_envs, "16,256,1024")
     thread_counts = _integers("--threads", threads, "2,4,8,16") if threads is not None else []
     from labcli.runs import bench as benches
 
     rows = benches.bench(task, counts, backend=backend, device=device, framework=framework,
-                         seconds=seconds, threads=thread_counts)
+                         seconds=seconds, threads=thread_counts, overrides=set_ or [])
     if as_json:
         out().print_json(json.dumps([row.as_dict() for row in rows]))
         return

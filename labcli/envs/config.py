@@ -16,7 +16,8 @@ class TaskConfig(BaseModel):
     model_config = ConfigDict(extra="forbid", validate_assignment=True, allow_inf_nan=False)
     # The keys a resume may change: how many envs step (they start new episodes) and how; not
     # the task itself (rewards, episodes, physics), which the checkpoint was trained on.
-    resumable: ClassVar[frozenset[str]] = frozenset({"num_envs", "threads", "cuda_graph"})
+    resumable: ClassVar[frozenset[str]] = frozenset({"num_envs", "threads", "cuda_graph",
+                                                     "compile"})
     # What `lab play` sets unless the user sets it (e.g. observation noise off).
     play_overrides: ClassVar[dict[str, Any]] = {}
 
@@ -38,6 +39,9 @@ class TaskConfig(BaseModel):
                               "per env (None: MuJoCo Warp's estimate)")
     cuda_graph: bool = Field(True, description="on a GPU, replay each env step as one CUDA graph "
                              "(false: step eagerly, for debugging a task)")
+    compile: bool = Field(False, description="cpu backend: trace each env step once and compile "
+                          "its torch code (TorchInductor; needs a C++ compiler, ~5-20 s at "
+                          "start): faster on many cores")
 
     def weights(self, step_dt: float) -> dict[str, float]:
         """Each reward term's weight per env step of `step_dt` s, by name."""

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from typing import TYPE_CHECKING, Any
 
 import gymnasium as gym
@@ -15,6 +15,7 @@ from gymnasium.vector import AutoresetMode
 from gymnasium.vector.utils import batch_space
 
 from labcli.envs import metrics
+from labcli.envs.compiled import CompiledStep
 from labcli.envs.config import TaskConfig
 from labcli.envs.cuda_graph import GraphedStep
 from labcli.envs.random import EnvRandom
@@ -94,8 +95,16 @@ class LabVecEnv(gym.vector.VectorEnv):
                                device=self.device)
         self.termination_names = [*self.task.terminations(), UNSTABLE]
         self.metric_names = list(self.task.episode_metrics())
+        # On the CPU a tensor reads on the host for free, and on most steps no env ends,
+        # diverges or gets a non-finite action: the step asks, and skips the work that would
+        # change nothing then (resets, episode figures, masking). On a GPU asking would wait for
+        # the device and break the step's CUDA graph, and a compiled step cannot ask: that work
+        # always runs there. Skipping an idle reset also decides which blocks draw
+        # (`EnvRandom.only_for`); the shortcuts change no output.
+        self._shortcuts = self.device.type == "cpu" and not cfg.compile
         first, total = shard or (0, self.num_envs)
-        self.rng = EnvRandom(self.num_envs, self.device, first, total)
+        self.rng = EnvRandom(self.num_envs, self.device, first, total,
+                             reads_masks=self._shortcuts)
         self.rng.manual_seed(seed)
         self.task.rng = self.rng
         self._np_random, self._np_random_seed = gym.utils.seeding.np_random(seed)
@@ -122,19 +131,21 @@ class LabVecEnv(gym.vector.VectorEnv):
         # NEXT_STEP: the envs that ended on the last step, to be reset on this one.
         self._pending = torch.zeros(n, dtype=torch.bool, device=dev)
         self._none = torch.zeros(n, dtype=torch.bool, device=dev)  # read only
-        # On the CPU a tensor reads on the host for free, and on most steps no env ends,
-        # diverges or gets a non-finite action: the step asks, and skips the work that would
-        # change nothing then (resets, episode figures, masking). On a GPU asking would wait for
-        # the device and break the step's CUDA graph: that work always runs there. Skipping an
-        # idle reset also decides which blocks draw (`EnvRandom.only_for`); the shortcuts
-        # change no output.
-        self._shortcuts = dev.type == "cpu"
+        # Without shortcuts: the envs whose action was not finite, from before the physics to
+        # after it (a compiled step's two parts).
+        self._bad_action = torch.zeros(n, dtype=torch.bool, device=dev)
         self._renderer: SceneRenderer | None = None
         self._resume_state: dict[str, torch.Tensor] | None = None
         # On a GPU the step is host-bound when eager: it replays as one CUDA graph instead.
         self._graphed = (GraphedStep(self._step, self.rng.generators, f"the env step of task "
                                      f"'{spec.name}'")
                          if self.device.type == "cuda" and cfg.cuda_graph else None)
+        # On the CPU the step's torch code is traced and compiled on request, in two parts: the
+        # physics between them is MuJoCo's.
+        what = f"the env step of task '{spec.name}'"
+        self._compiled = ((CompiledStep(self._act, what, self.rng), CompiledStep(
+            lambda *out: self._settle(StepOutputs(*out), self._bad_action), what, self.rng))
+            if self.device.type == "cpu" and cfg.compile else None)
 
     @property
     def threads(self) -> int | None:
@@ -176,6 +187,8 @@ class LabVecEnv(gym.vector.VectorEnv):
         actions = checked_actions(actions, self.action_space.shape, self.device)
         if self._graphed is not None:
             return self._graphed(actions)
+        if self._compiled is not None:
+            return self._compiled_step(actions, self.new_outputs())
         return self._step(actions)
 
     def step_into(self, actions: torch.Tensor, out: StepOutputs) -> None:
@@ -184,7 +197,32 @@ class LabVecEnv(gym.vector.VectorEnv):
         outputs there would be one op more for each. `actions` are taken as they are: a float32
         `[num_envs, actions]` tensor on the env's device, which the sharded env checked before
         it copied them into the shared buffer."""
-        self._step(actions, out)
+        if self._compiled is not None:
+            self._compiled_step(actions, out)
+        else:
+            self._step(actions, out)
+
+    def new_outputs(self, num_envs: int | None = None,
+                    make: Callable[[torch.Tensor], torch.Tensor] = lambda t: t) -> StepOutputs:
+        """New tensors for every output of a step (`step_into`) of `num_envs` envs (this env's by
+        default), each through `make` (e.g. into shared memory)."""
+        n, obs, dev = num_envs or self.num_envs, len(self.observation_names), self.device
+        bools = {name: torch.zeros(n, dtype=torch.bool, device=dev)
+                 for name in ("terminated", "truncated", "done", "success")}
+        return StepOutputs(**{name: make(tensor) for name, tensor in {
+            "obs": torch.zeros(n, obs, device=dev), "final_obs": torch.zeros(n, obs, device=dev),
+            "reward": torch.zeros(n, device=dev), "r": torch.zeros(n, device=dev),
+            "l": torch.zeros(n, dtype=torch.long, device=dev), **bools,
+            "terminations": torch.zeros(n, len(self.termination_names), dtype=torch.bool,
+                                        device=dev)}.items()})
+
+    def returned(self, out: StepOutputs) -> tuple:
+        """What `step` returns, of a step's outputs written into `out`."""
+        info = {EPISODE: {"r": out.r, "l": out.l, "success": out.success},
+                f"_{EPISODE}": out.done, "terminations": out.terminations}
+        if self.autoreset_mode is AutoresetMode.SAME_STEP:
+            info["final_obs"], info["_final_obs"] = out.final_obs, out.done
+        return out.obs, out.reward, out.terminated, out.truncated, info
 
     def close_extras(self, **kwargs: Any) -> None:
         # VectorEnv.close calls this once, then sets `closed`.
@@ -198,10 +236,26 @@ class LabVecEnv(gym.vector.VectorEnv):
     def _step(self, actions: torch.Tensor, out: StepOutputs | None = None):
         """The MDP of one env step, as torch operations only (no host syncs, fixed shapes), so
         that on a GPU it replays as a CUDA graph. With `out`, its outputs go there."""
-        o = out or _NEW_OUTPUTS
+        bad_action = self._act(actions)
+        self.sim.step(self.cfg.decimation)
+        return self._settle(out or _NEW_OUTPUTS, bad_action)
+
+    def _compiled_step(self, actions: torch.Tensor, out: StepOutputs) -> tuple:
+        act, settle = self._compiled
+        act(actions.contiguous())  # compiled for a contiguous input
+        self.sim.step(self.cfg.decimation)
+        settle(*(getattr(out, f.name) for f in fields(StepOutputs)))
+        return self.returned(out)
+
+    def _act(self, actions: torch.Tensor) -> torch.Tensor | None:
+        """The step before the physics: the actions made safe and turned into controls. The
+        envs whose action was not finite (None: none)."""
         safe, bad_action = self._safe_actions(actions)
         self.task.apply_actions(safe)
-        self.sim.step(self.cfg.decimation)
+        return bad_action
+
+    def _settle(self, o: StepOutputs, bad_action: torch.Tensor | None = None):
+        """The step after the physics, into `o`: every term, figure, reset and output."""
         self.task.update()
         self.episode_length += 1
 
@@ -237,7 +291,8 @@ class LabVecEnv(gym.vector.VectorEnv):
         if ended:
             self._accumulate(done, success, terminated, bad_action)
         # A view of this step's own tensor needs no copy; a shard's buffer does.
-        terminations = terminated.t() if out is None else out.terminations.copy_(terminated.t())
+        terminations = (terminated.t() if o.terminations is None
+                        else o.terminations.copy_(terminated.t()))
         info = {EPISODE: episode, f"_{EPISODE}": done, "terminations": terminations}
         if next_step:
             self._reset_envs(self._pending)
@@ -256,7 +311,8 @@ class LabVecEnv(gym.vector.VectorEnv):
             return actions.clamp(-self.clip_actions, self.clip_actions), None
         safe = actions.nan_to_num(0.0)
         # nan_to_num changed exactly the non-finite entries (NaN equals nothing, inf != max).
-        bad_action = safe.ne(actions).any(dim=1)
+        bad_action = torch.any(safe.ne(actions), dim=1,
+                               out=None if self._shortcuts else self._bad_action)
         return safe.clamp_(-self.clip_actions, self.clip_actions), bad_action
 
     def _unstable(self, bad_action: torch.Tensor | None) -> torch.Tensor | None:

@@ -4,7 +4,7 @@ not depend on how many envs share its batch (one process, or the cpu backend's e
 from __future__ import annotations
 
 import contextlib
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 
 import numpy as np
 import torch
@@ -26,7 +26,9 @@ class EnvRandom:
     `torch.Generator`, and every env gets the same numbers in one batch or in shards."""
 
     def __init__(self, num_envs: int, device: torch.device | str, first: int = 0,
-                 total: int | None = None):
+                 total: int | None = None, reads_masks: bool | None = None):
+        """`reads_masks`: whether `only_for` reads its mask on the host (by default on the
+        CPU); not in a step that is replayed or compiled, which cannot read it."""
         total = num_envs if total is None else total
         bounds = block_bounds(total)
         self.blocks = [b for b in range(len(bounds) - 1)
@@ -36,11 +38,14 @@ class EnvRandom:
             raise ValueError(f"envs [{first}, {first + num_envs}) of {total} are not whole blocks")
         self._rows = [slice(bounds[b] - first, bounds[b + 1] - first) for b in self.blocks]
         self.num_envs, self.device = num_envs, torch.device(device)
-        self._on_cpu = self.device.type == "cpu"  # asked on every `only_for`
+        self._reads_masks = (self.device.type == "cpu" if reads_masks is None
+                             else reads_masks)  # asked on every `only_for`
         self.generators = [torch.Generator(device) for _ in self.blocks]
         self._ends = torch.tensor([r.stop for r in self._rows])
         self._equal = len({r.stop - r.start for r in self._rows}) == 1
         self._drawing = [True] * len(self.blocks)
+        self._defer: Callable[[torch.Tensor, Callable[[torch.Tensor], torch.Tensor]],
+                              torch.Tensor] | None = None
 
     @contextlib.contextmanager
     def only_for(self, mask: torch.Tensor) -> Iterator[bool]:
@@ -49,8 +54,8 @@ class EnvRandom:
         the blocks with no env in it neither draw nor advance: what a block draws then depends
         on its own envs only, not on whether others, in its batch or not, are in the mask. On a
         GPU it says yes and every block draws: reading the mask would wait for the device and
-        break the step's CUDA graph."""
-        if not self._on_cpu:
+        break the step's CUDA graph; nor when told not to read masks (a compiled step)."""
+        if not self._reads_masks:
             yield True
             return
         if self._equal:  # one op, not a cumulative sum: this runs on most steps
@@ -84,11 +89,26 @@ class EnvRandom:
         return self._fill(out, torch.Tensor.normal_)
 
     def _fill(self, out: torch.Tensor, draw) -> torch.Tensor:
-        for rows, generator, drawing in zip(self._rows, self.generators, self._drawing,
-                                            strict=True):
-            if drawing:
-                draw(out[rows], generator=generator)
-        return out
+        def fill(tensor: torch.Tensor) -> torch.Tensor:
+            for rows, generator, drawing in zip(self._rows, self.generators, self._drawing,
+                                                strict=True):
+                if drawing:
+                    draw(tensor[rows], generator=generator)
+            return tensor
+
+        return fill(out) if self._defer is None else self._defer(out, fill)
+
+    @contextlib.contextmanager
+    def deferred(self, defer: Callable[[torch.Tensor, Callable[[torch.Tensor], torch.Tensor]],
+                                       torch.Tensor]) -> Iterator[None]:
+        """Inside, each draw into `out` is `defer(out, fill)` instead, where `fill(tensor)`
+        makes the draw into `tensor`: a compiled step draws outside its compiled code
+        (`labcli.envs.compiled`)."""
+        self._defer = defer
+        try:
+            yield
+        finally:
+            self._defer = None
 
     def get_state(self) -> torch.Tensor:
         """Every block's generator state, a row each."""

@@ -31,7 +31,6 @@ from gymnasium.vector import AutoresetMode
 from labcli.envs.config import TaskConfig
 from labcli.envs.cores import cores
 from labcli.envs.env import (
-    EPISODE,
     LabVecEnv,
     Reduce,
     StepOutputs,
@@ -90,19 +89,12 @@ def _layout(num_envs: int, count: int) -> list[_Shard]:
 
 def _buffers(env: LabVecEnv, num_envs: int, count: int) -> dict[str, torch.Tensor]:
     """The tensors the processes share: the actions in, every output of a step out."""
-    obs, act = env.single_observation_space.shape[0], env.single_action_space.shape[0]
-    n, t = num_envs, len(env.termination_names)
-    return {name: shared(tensor) for name, tensor in {
-        "actions": torch.zeros(n, act), "obs": torch.zeros(n, obs),
-        "final_obs": torch.zeros(n, obs), "reward": torch.zeros(n),
-        "terminated": torch.zeros(n, dtype=torch.bool),
-        "truncated": torch.zeros(n, dtype=torch.bool), "done": torch.zeros(n, dtype=torch.bool),
-        "r": torch.zeros(n), "l": torch.zeros(n, dtype=torch.long),
-        "success": torch.zeros(n, dtype=torch.bool),
-        "terminations": torch.zeros(n, t, dtype=torch.bool),
-        "stats": torch.zeros(count, env.stats_size, dtype=torch.float64),
-        "flags": torch.zeros(count, 2, dtype=torch.uint8),
-    }.items()}
+    outputs = env.new_outputs(num_envs, shared)
+    return {f.name: getattr(outputs, f.name) for f in fields(StepOutputs)} | {
+        name: shared(tensor) for name, tensor in {
+            "actions": torch.zeros(num_envs, env.single_action_space.shape[0]),
+            "stats": torch.zeros(count, env.stats_size, dtype=torch.float64),
+            "flags": torch.zeros(count, 2, dtype=torch.uint8)}.items()}
 
 
 def _serve(spec: TaskSpec, cfg: TaskConfig, seed: int, mode: AutoresetMode, shard: _Shard,
@@ -340,6 +332,7 @@ class ShardedVecEnv(gym.vector.VectorEnv):
         self._rng = EnvRandom(n, "cpu")  # checks a whole env's saved generator states
         self._np_random, self._np_random_seed = gym.utils.seeding.np_random(seed)
         self._resume_state: dict[str, torch.Tensor] | None = None
+        self._stepped = False
         self._buffers = _buffers(local, n, len(self._shards))
         self._local_end = _ShardEnd(local, self._buffers, first, 0)
         for i, shard in enumerate(self._shards[1:], start=1):
@@ -372,8 +365,13 @@ class ShardedVecEnv(gym.vector.VectorEnv):
         b = self._buffers
         actions = checked_actions(actions, b["actions"].shape, self.device)
         b["actions"].copy_(actions)
-        for worker in self._workers:
-            worker.go.release()
+        # A compiled step's first step compiles it: here first, then in the workers from
+        # inductor's cache on disk, not in every process at once.
+        first = self.cfg.compile and not self._stepped
+        self._stepped = True
+        if not first:
+            for worker in self._workers:
+                worker.go.release()
         # Whatever happens here (an error, Ctrl-C), every worker finishes this step before the
         # step ends: a worker left behind would answer the next step with this one.
         failure: BaseException | None = None
@@ -381,6 +379,9 @@ class ShardedVecEnv(gym.vector.VectorEnv):
             self._local_end.step()
         except BaseException as exc:
             failure = exc
+        if first:
+            for worker in self._workers:
+                worker.go.release()
         for worker in self._workers:
             while True:
                 try:
@@ -393,14 +394,8 @@ class ShardedVecEnv(gym.vector.VectorEnv):
                 break
         if failure is not None:
             raise failure
-        done = b["done"].clone()
-        info = {EPISODE: {"r": b["r"].clone(), "l": b["l"].clone(),
-                          "success": b["success"].clone()},
-                f"_{EPISODE}": done, "terminations": b["terminations"].clone()}
-        if self.autoreset_mode is AutoresetMode.SAME_STEP:
-            info["final_obs"], info["_final_obs"] = b["final_obs"].clone(), done
-        return (b["obs"].clone(), b["reward"].clone(), b["terminated"].clone(),
-                b["truncated"].clone(), info)
+        return self._local.returned(StepOutputs(**{f.name: b[f.name].clone()
+                                                   for f in fields(StepOutputs)}))
 
     def close_extras(self, **kwargs: Any) -> None:
         self._stop_workers()

@@ -187,11 +187,12 @@ def time_to_success(run_dir: Path, threshold: float) -> tuple[float, int] | None
 
 def bench(task: str, num_envs: Sequence[int], *, backend: str | None = None,
           device: str | None = None, framework: str | None = None,
-          seconds: float = 3.0, threads: Sequence[int] = ()) -> list[BenchRow]:
+          seconds: float = 3.0, threads: Sequence[int] = (),
+          overrides: Sequence[str] = ()) -> list[BenchRow]:
     """A row per thread count (cpu backend; none given: the cores this process may use) and env
     count, in that order: each env measured beside the rollout of what it steps on as many
     threads (in turns, `beside_rollout`), so that the ratio says how much of the cores' physics
-    lab keeps."""
+    lab keeps. `overrides`: `--set` settings of the env (and of the training run)."""
     spec = registry.get_task(task)
     if framework is not None:
         registry.get_framework(framework)  # an unknown name fails before any measuring
@@ -205,7 +206,7 @@ def bench(task: str, num_envs: Sequence[int], *, backend: str | None = None,
                        "may use")
     if not 0 < seconds <= 3600:
         raise LabError(f"--seconds must be more than 0 and at most 3600, got {seconds:g}")
-    settings = [[f"env.threads={t}"] for t in threads] or [[]]
+    settings = [[*overrides, f"env.threads={t}"] for t in threads] or [list(overrides)]
     # Validated as `lab train` validates them: a count past the config's bounds is one line.
     runs = [(overrides, config.build(spec.config_class, "env", [config.parse_set(
         [f"env.num_envs={n}", *overrides])["env"]])) for overrides in settings for n in num_envs]
