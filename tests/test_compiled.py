@@ -41,17 +41,22 @@ def test_a_compiled_step_computes_what_the_eager_step_computes():
     """Until an env resets (then the compiled step, which draws on every step, draws other
     numbers), its outputs are the eager step's up to the order of a float sum."""
     eager, compiled = build("cartpole", 64), build("cartpole", 64, compile=True)
-    for env in (eager, compiled):
-        env.reset(seed=3)
-    actions = torch.linspace(-0.2, 0.2, 64)[:, None]
-    for _ in range(15):  # the trace's step, then the compiled code's
-        a, b = eager.step(actions), compiled.step(actions)
-        assert not a[4][f"_{EPISODE}"].any()
-        torch.testing.assert_close(b[0], a[0], rtol=1e-6, atol=1e-6)
-        torch.testing.assert_close(b[1], a[1], rtol=1e-6, atol=1e-6)
-        assert torch.equal(a[2], b[2]) and torch.equal(a[3], b[3])
-        torch.testing.assert_close(b[4][EPISODE]["r"], a[4][EPISODE]["r"], rtol=1e-5, atol=1e-5)
-    assert torch.equal(compiled.get_state()["episode_length"], torch.full((64,), 15))
+    try:
+        for env in (eager, compiled):
+            env.reset(seed=3)
+        actions = torch.linspace(-0.2, 0.2, 64)[:, None]
+        for _ in range(15):  # the trace's step, then the compiled code's
+            a, b = eager.step(actions), compiled.step(actions)
+            assert not a[4][f"_{EPISODE}"].any()
+            torch.testing.assert_close(b[0], a[0], rtol=1e-6, atol=1e-6)
+            torch.testing.assert_close(b[1], a[1], rtol=1e-6, atol=1e-6)
+            assert torch.equal(a[2], b[2]) and torch.equal(a[3], b[3])
+            torch.testing.assert_close(b[4][EPISODE]["r"], a[4][EPISODE]["r"], rtol=1e-5,
+                                       atol=1e-5)
+        assert torch.equal(compiled.get_state()["episode_length"], torch.full((64,), 15))
+    finally:
+        eager.close()
+        compiled.close()
 
 
 class _HostReadingCartpole(Cartpole):
@@ -65,6 +70,9 @@ def test_a_step_that_reads_the_host_cannot_be_compiled_and_says_so():
     spec = dataclasses.replace(registry.get_task("cartpole"), name="cartpole_host",
                                task=_HostReadingCartpole)
     env = LabVecEnv(spec, spec.config_class(num_envs=4, compile=True), backend="cpu")
-    env.reset(seed=0)
-    with pytest.raises(LabError, match=r"could not be traced.*--set env.compile=false"):
-        env.step(torch.zeros(4, 1))
+    try:
+        env.reset(seed=0)
+        with pytest.raises(LabError, match=r"could not be traced.*--set env.compile=false"):
+            env.step(torch.zeros(4, 1))
+    finally:
+        env.close()

@@ -109,25 +109,23 @@ def _lift_tensors(graph: torch.fx.GraphModule, inputs: Sequence[torch.Tensor]
     after `inputs` on every call."""
     nodes = [node for node in graph.graph.nodes if node.op == "get_attr"
              and isinstance(getattr(graph, node.target), torch.Tensor)]
-    spans: dict[int, tuple[int, int, torch.dtype]] = {}
+    # Per storage (by address): the span of it the step touches, its dtype, the storage.
+    spans: dict[int, tuple[int, int, torch.dtype, torch.UntypedStorage]] = {}
     for node in nodes:
         tensor = getattr(graph, node.target)
         start, stop = _span(tensor)
-        key = tensor.untyped_storage().data_ptr()
-        low, high, dtype = spans.get(key, (start, stop, tensor.dtype))
+        storage = tensor.untyped_storage()
+        low, high, dtype, _ = spans.get(storage.data_ptr(),
+                                        (start, stop, tensor.dtype, storage))
         if dtype != tensor.dtype:
             raise LabError("the env step reads one storage as two dtypes: it cannot be "
                            "compiled", f"--set {FLAG}=false to step eagerly")
-        spans[key] = (min(low, start), max(high, stop), dtype)
+        spans[storage.data_ptr()] = (min(low, start), max(high, stop), dtype, storage)
     if any(t.untyped_storage().data_ptr() in spans for t in inputs):
         raise LabError("the env step's inputs share memory with the tensors it reads: it "
                        "cannot be compiled", f"--set {FLAG}=false to step eagerly")
-    storages = {getattr(graph, n.target).untyped_storage().data_ptr():
-                getattr(graph, n.target).untyped_storage() for n in nodes}
-    bases: dict[int, torch.Tensor] = {}
-    for key, (low, high, dtype) in spans.items():
-        base = torch.empty(0, dtype=dtype)
-        bases[key] = base.set_(storages[key], low, (high - low,), (1,))
+    bases = {key: torch.empty(0, dtype=dtype).set_(storage, low, (high - low,), (1,))
+             for key, (low, high, dtype, storage) in spans.items()}
     placeholders = [node for node in graph.graph.nodes if node.op == "placeholder"]
     first_op = placeholders[-1].next if placeholders else next(iter(graph.graph.nodes))
     with graph.graph.inserting_before(first_op):

@@ -40,8 +40,8 @@ class TaskConfig(BaseModel):
     cuda_graph: bool = Field(True, description="on a GPU, replay each env step as one CUDA graph "
                              "(false: step eagerly, for debugging a task)")
     compile: bool = Field(False, description="cpu backend: trace each env step once and compile "
-                          "its torch code (TorchInductor; needs a C++ compiler, ~5-20 s at "
-                          "start): faster on many cores")
+                          "its torch code (TorchInductor; needs a C++ compiler; the first step "
+                          "compiles, seconds to minutes, then cached): faster on many cores")
 
     def weights(self, step_dt: float) -> dict[str, float]:
         """Each reward term's weight per env step of `step_dt` s, by name."""

@@ -188,7 +188,9 @@ class LabVecEnv(gym.vector.VectorEnv):
         if self._graphed is not None:
             return self._graphed(actions)
         if self._compiled is not None:
-            return self._compiled_step(actions, self.new_outputs())
+            out = self.new_outputs()
+            self._compiled_step(actions, out)
+            return self.returned(out)
         return self._step(actions)
 
     def step_into(self, actions: torch.Tensor, out: StepOutputs) -> None:
@@ -240,12 +242,11 @@ class LabVecEnv(gym.vector.VectorEnv):
         self.sim.step(self.cfg.decimation)
         return self._settle(out or _NEW_OUTPUTS, bad_action)
 
-    def _compiled_step(self, actions: torch.Tensor, out: StepOutputs) -> tuple:
+    def _compiled_step(self, actions: torch.Tensor, out: StepOutputs) -> None:
         act, settle = self._compiled
         act(actions.contiguous())  # compiled for a contiguous input
         self.sim.step(self.cfg.decimation)
         settle(*(getattr(out, f.name) for f in fields(StepOutputs)))
-        return self.returned(out)
 
     def _act(self, actions: torch.Tensor) -> torch.Tensor | None:
         """The step before the physics: the actions made safe and turned into controls. The

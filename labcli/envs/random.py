@@ -4,6 +4,7 @@ not depend on how many envs share its batch (one process, or the cpu backend's e
 from __future__ import annotations
 
 import contextlib
+import functools
 from collections.abc import Callable, Iterator
 
 import numpy as np
@@ -89,14 +90,16 @@ class EnvRandom:
         return self._fill(out, torch.Tensor.normal_)
 
     def _fill(self, out: torch.Tensor, draw) -> torch.Tensor:
-        def fill(tensor: torch.Tensor) -> torch.Tensor:
-            for rows, generator, drawing in zip(self._rows, self.generators, self._drawing,
-                                                strict=True):
-                if drawing:
-                    draw(tensor[rows], generator=generator)
-            return tensor
+        if self._defer is not None:
+            return self._defer(out, functools.partial(self._draw_blocks, draw=draw))
+        return self._draw_blocks(out, draw)
 
-        return fill(out) if self._defer is None else self._defer(out, fill)
+    def _draw_blocks(self, out: torch.Tensor, draw) -> torch.Tensor:
+        for rows, generator, drawing in zip(self._rows, self.generators, self._drawing,
+                                            strict=True):
+            if drawing:
+                draw(out[rows], generator=generator)
+        return out
 
     @contextlib.contextmanager
     def deferred(self, defer: Callable[[torch.Tensor, Callable[[torch.Tensor], torch.Tensor]],
