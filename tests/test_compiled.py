@@ -20,7 +20,9 @@ pytestmark = pytest.mark.skipif(not (shutil.which("g++") or shutil.which("c++"))
                                 reason="no C++ compiler")
 
 
-def test_a_compiled_step_gives_the_same_outputs_in_shards_and_in_one_process():
+def test_a_compiled_step_gives_the_same_outputs_in_shards_and_in_one_process(tmp_path,
+                                                                             monkeypatch):
+    monkeypatch.setenv("TORCHINDUCTOR_CACHE_DIR", str(tmp_path))
     # 60 steps of random pushes: episodes end and reset in both shards.
     one = build("cartpole", 128, compile=True)
     ended = []
@@ -35,6 +37,10 @@ def test_a_compiled_step_gives_the_same_outputs_in_shards_and_in_one_process():
         assert_same(alone, trajectory(sharded, 60))
     finally:
         sharded.close()
+    # One entry a compiled part (before and after the physics) for each of the two shapes:
+    # 128 envs alone, 64 a shard. The worker's shard loaded what the caller's compiled; had it
+    # compiled again (another key, e.g. another thread count), it would have written its own.
+    assert len([f for f in (tmp_path / "fxgraph").rglob("*") if f.is_file()]) == 4
 
 
 def test_a_compiled_step_computes_what_the_eager_step_computes():

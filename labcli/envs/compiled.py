@@ -89,9 +89,17 @@ def _compile(fn: Callable[..., object], inputs: Sequence[torch.Tensor], what: st
         try:
             # fallback_random: a draw not through EnvRandom stays torch's own. size_asserts:
             # every call's inputs are shaped and strided as the first's, the env's own tensors
-            # or new ones made alike (~0.4 µs a check, 26 checks a cartpole step).
-            with torch._inductor.config.patch(fallback_random=True, compile_threads=1,
-                                              size_asserts=False):
+            # or new ones made alike (~0.4 µs a check, 26 checks a cartpole step). cpp.threads:
+            # a shard's step is one thread's work beside the others', and inductor's cache key
+            # holds the thread count, so the caller's code (its torch threads: the machine's)
+            # would otherwise be compiled again in every worker (one thread each). vec_isa_ok:
+            # AVX2 and AVX-512 are used as the CPU's flags say, without inductor's probe of
+            # each, which builds a library and loads it in a child Python under a lock all
+            # shards share (on torch 2.11 that child imports torch: seconds a probe, a shard
+            # after another); its probes of AVX-512 extensions and AMX run whatever this says.
+            with torch._inductor.config.patch({"fallback_random": True, "compile_threads": 1,
+                                               "size_asserts": False, "cpp.threads": 1,
+                                               "cpp.vec_isa_ok": True}):
                 compiled = torch._inductor.compile(graph, _static_fakes([*inputs, *bases]))
         except Exception as exc:  # a missing C++ compiler, an op inductor cannot lower
             raise LabError(f"{what} could not be compiled: {first_line(exc)}",
