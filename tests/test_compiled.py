@@ -4,6 +4,7 @@ outputs in shards as in one process, and a step it cannot compile named in one l
 from __future__ import annotations
 
 import dataclasses
+import re
 import shutil
 
 import pytest
@@ -21,7 +22,7 @@ pytestmark = pytest.mark.skipif(not (shutil.which("g++") or shutil.which("c++"))
 
 
 def test_a_compiled_step_gives_the_same_outputs_in_shards_and_in_one_process(tmp_path,
-                                                                             monkeypatch):
+                                                                             monkeypatch, capfd):
     monkeypatch.setenv("TORCHINDUCTOR_CACHE_DIR", str(tmp_path))
     # 60 steps of random pushes: episodes end and reset in both shards.
     one = build("cartpole", 128, compile=True)
@@ -32,15 +33,26 @@ def test_a_compiled_step_gives_the_same_outputs_in_shards_and_in_one_process(tmp
     finally:
         one.close()
     assert torch.stack(ended).any()
+    assert _notices(capfd.readouterr().err) == (1, 1)
     sharded = build("cartpole", 128, shards=2, compile=True)
     try:
         assert_same(alone, trajectory(sharded, 60))
     finally:
         sharded.close()
+    # The sharded env says it compiles once, in the caller; its workers (their stderr is the
+    # terminal's too) say nothing.
+    assert _notices(capfd.readouterr().err) == (1, 1)
     # One entry a compiled part (before and after the physics) for each of the two shapes:
     # 128 envs alone, 64 a shard. The worker's shard loaded what the caller's compiled; had it
     # compiled again (another key, e.g. another thread count), it would have written its own.
     assert len([f for f in (tmp_path / "fxgraph").rglob("*") if f.is_file()]) == 4
+
+
+def _notices(err: str) -> tuple[int, int]:
+    """How many lines of `err` say that the env step compiles, and that it compiled."""
+    lines = err.splitlines()
+    return (sum(line.startswith("compiling the env step (env.compile=true;") for line in lines),
+            sum(re.fullmatch(r"env step compiled in \d+ s", line) is not None for line in lines))
 
 
 def test_a_compiled_step_computes_what_the_eager_step_computes():

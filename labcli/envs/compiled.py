@@ -18,7 +18,10 @@ no mask on the host, so every block draws on every step, whatever the step does.
 from __future__ import annotations
 
 import os
-from collections.abc import Callable, Sequence
+import sys
+import time
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
 
 import torch
 
@@ -44,6 +47,11 @@ class CompiledStep:
         # Each draw of the step: the tensor it is made into ahead, and how to make it.
         self._draws: list[tuple[torch.Tensor, Callable[[torch.Tensor], torch.Tensor]]] = []
 
+    @property
+    def ready(self) -> bool:
+        """Whether the step is compiled (its first call was made)."""
+        return self._compiled is not None
+
     def __call__(self, *inputs: torch.Tensor) -> None:
         if self._compiled is None:
             with self._rng.deferred(self._draw_ahead):
@@ -63,6 +71,22 @@ class CompiledStep:
             ahead = fill(torch.empty(out.shape, dtype=out.dtype, device=out.device))
         self._draws.append((ahead, fill))
         return out.copy_(ahead)
+
+
+@contextmanager
+def compiling_notice() -> Iterator[None]:
+    """A line before an env's first compiled step and one after it: it compiles for seconds to
+    minutes, often under a training run's progress bar. Written to `sys.stderr` as it is then,
+    which a live bar redirects to print above itself (a rich Console would write past it to the
+    terminal, and a spinner would be a second live display)."""
+    from torch._inductor.runtime.cache_dir_utils import cache_dir
+
+    print(f"compiling the env step ({FLAG}=true; cached in {cache_dir()})", file=sys.stderr,
+          flush=True)
+    start = time.perf_counter()
+    yield
+    print(f"env step compiled in {time.perf_counter() - start:.0f} s", file=sys.stderr,
+          flush=True)
 
 
 def _compile(fn: Callable[..., object], inputs: Sequence[torch.Tensor], what: str):

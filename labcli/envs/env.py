@@ -15,7 +15,7 @@ from gymnasium.vector import AutoresetMode
 from gymnasium.vector.utils import batch_space
 
 from labcli.envs import metrics
-from labcli.envs.compiled import CompiledStep
+from labcli.envs.compiled import CompiledStep, compiling_notice
 from labcli.envs.config import TaskConfig
 from labcli.envs.cuda_graph import GraphedStep
 from labcli.envs.random import EnvRandom
@@ -189,7 +189,11 @@ class LabVecEnv(gym.vector.VectorEnv):
             return self._graphed(actions)
         if self._compiled is not None:
             out = self.new_outputs()
-            self._compiled_step(actions, out)
+            if self._compiled[1].ready:
+                self._compiled_step(actions, out)
+            else:
+                with compiling_notice():
+                    self._compiled_step(actions, out)
             return self.returned(out)
         return self._step(actions)
 

@@ -28,6 +28,7 @@ import torch
 import torch.multiprocessing as mp
 from gymnasium.vector import AutoresetMode
 
+from labcli.envs.compiled import compiling_notice
 from labcli.envs.config import TaskConfig
 from labcli.envs.cores import cores
 from labcli.envs.env import (
@@ -369,7 +370,17 @@ class ShardedVecEnv(gym.vector.VectorEnv):
         # inductor's cache on disk, not in every process at once.
         first = self.cfg.compile and not self._stepped
         self._stepped = True
-        if not first:
+        if first:
+            with compiling_notice():
+                self._step_shards(local_first=True)
+        else:
+            self._step_shards(local_first=False)
+        return self._local.returned(StepOutputs(**{f.name: b[f.name].clone()
+                                                   for f in fields(StepOutputs)}))
+
+    def _step_shards(self, local_first: bool) -> None:
+        """Every shard's step, the workers' released before or after this process's own."""
+        if not local_first:
             for worker in self._workers:
                 worker.go.release()
         # Whatever happens here (an error, Ctrl-C), every worker finishes this step before the
@@ -379,7 +390,7 @@ class ShardedVecEnv(gym.vector.VectorEnv):
             self._local_end.step()
         except BaseException as exc:
             failure = exc
-        if first:
+        if local_first:
             for worker in self._workers:
                 worker.go.release()
         for worker in self._workers:
@@ -394,8 +405,6 @@ class ShardedVecEnv(gym.vector.VectorEnv):
                 break
         if failure is not None:
             raise failure
-        return self._local.returned(StepOutputs(**{f.name: b[f.name].clone()
-                                                   for f in fields(StepOutputs)}))
 
     def close_extras(self, **kwargs: Any) -> None:
         self._stop_workers()
