@@ -412,6 +412,8 @@ def main() -> None:
     a = p.parse_args()
     if a.train and TASK not in a.tasks.split(","):
         p.error(f"--train times {TASK}'s training: list it in --tasks")
+    if not set(a.steps.split(",")) <= {"eager", "compiled"}:
+        p.error(f"--steps takes eager, compiled or eager,compiled, got {a.steps}")
     if a.profile:
         profile_table(a.profile, profile(a.profile))
         return

@@ -17,7 +17,6 @@ no mask on the host, so every block draws on every step, whatever the step does.
 
 from __future__ import annotations
 
-import os
 import sys
 import time
 from collections.abc import Callable, Iterator, Sequence
@@ -90,9 +89,6 @@ def compiling_notice() -> Iterator[None]:
 
 
 def _compile(fn: Callable[..., object], inputs: Sequence[torch.Tensor], what: str):
-    # One compiling thread: each env shard compiles in its own process already, and inductor
-    # would otherwise start a pool of compile workers in each, read as it is imported.
-    os.environ.setdefault("TORCHINDUCTOR_COMPILE_THREADS", "1")
     # Imported here: inductor takes seconds to import, and only this option needs it.
     import torch._inductor
     from torch.fx.experimental.proxy_tensor import make_fx
@@ -111,16 +107,18 @@ def _compile(fn: Callable[..., object], inputs: Sequence[torch.Tensor], what: st
                 "to step eagerly") from exc
         bases = _lift_tensors(graph, inputs)
         try:
-            # fallback_random: a draw not through EnvRandom stays torch's own. size_asserts:
-            # every call's inputs are shaped and strided as the first's, the env's own tensors
-            # or new ones made alike (~0.4 µs a check, 26 checks a cartpole step). cpp.threads:
-            # a shard's step is one thread's work beside the others', and inductor's cache key
-            # holds the thread count, so the caller's code (its torch threads: the machine's)
-            # would otherwise be compiled again in every worker (one thread each). vec_isa_ok:
-            # AVX2 and AVX-512 are used as the CPU's flags say, without inductor's probe of
-            # each, which builds a library and loads it in a child Python under a lock all
-            # shards share (on torch 2.11 that child imports torch: seconds a probe, a shard
-            # after another); its probes of AVX-512 extensions and AMX run whatever this says.
+            # compile_threads: each env shard compiles in its own process already, and inductor
+            # would otherwise start a pool of compile workers in each. fallback_random: a draw
+            # not through EnvRandom stays torch's own. size_asserts: every call's inputs are
+            # shaped and strided as the first's, the env's own tensors or new ones made alike
+            # (~0.4 µs a check, 26 checks a cartpole step). cpp.threads: a shard's step is one
+            # thread's work beside the others', and inductor's cache key holds the thread
+            # count, so the caller's code (its torch threads: the machine's) would otherwise be
+            # compiled again in every worker (one thread each). vec_isa_ok: AVX2 and AVX-512
+            # are used as the CPU's flags say, without inductor's probe of each, which builds a
+            # library and loads it in a child Python under a lock all shards share (on torch
+            # 2.11 that child imports torch: seconds a probe, a shard after another); its
+            # probes of AVX-512 extensions and AMX run whatever this says.
             with torch._inductor.config.patch({"fallback_random": True, "compile_threads": 1,
                                                "size_asserts": False, "cpp.threads": 1,
                                                "cpp.vec_isa_ok": True}):

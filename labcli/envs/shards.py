@@ -370,11 +370,8 @@ class ShardedVecEnv(gym.vector.VectorEnv):
         # inductor's cache on disk, not in every process at once.
         first = self.cfg.compile and not self._stepped
         self._stepped = True
-        if first:
-            with compiling_notice():
-                self._step_shards(local_first=True)
-        else:
-            self._step_shards(local_first=False)
+        with compiling_notice() if first else contextlib.nullcontext():
+            self._step_shards(local_first=first)
         return self._local.returned(StepOutputs(**{f.name: b[f.name].clone()
                                                    for f in fields(StepOutputs)}))
 
