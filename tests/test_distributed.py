@@ -115,6 +115,17 @@ def _rank(rank: int, tmp: str, framework: str, port: int, late_sigterm: bool = F
                              device="cpu", backend="cpu", overrides=SMALL[framework],
                              logs_dir=Path(tmp, f"logs{rank}"), console=Console(file=io.StringIO()))
     Path(tmp, f"summary{rank}.json").write_text(json.dumps(outcome.summary))
+    # The group is gone with its threads once training returns: a group that outlived
+    # destroy_process_group ran gloo's threads into the interpreter's teardown, where a rank
+    # now and then aborted at exit.
+    assert not torch.distributed.is_initialized()
+    assert not [name for name in _native_threads() if "gloo" in name]
+
+
+def _native_threads() -> list[str]:
+    tasks = Path("/proc/self/task")
+    return [(task / "comm").read_text().strip() for task in tasks.iterdir()] if tasks.exists() \
+        else []
 
 
 def _tensors(value, prefix=""):

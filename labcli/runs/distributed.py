@@ -55,6 +55,13 @@ def process_group(ranks: Ranks, device: str) -> Iterator[None]:
     if not ranks.active:
         yield
         return
+    # torch.distributed.nn.functional binds `group.WORLD` as its functions' default argument
+    # when it is imported; imported after the group exists (RSL-RL imports it, through
+    # tensordict and torch.compiler), it kept the group alive past destroy_process_group, and
+    # gloo's threads ran on into the interpreter's teardown, where a rank now and then aborted
+    # ("terminate called without an active exception"). Imported first, it binds None.
+    import torch.distributed.nn  # noqa: F401
+
     cuda = torch.device(device).type == "cuda"
     if cuda:
         torch.cuda.set_device(torch.device(device))
