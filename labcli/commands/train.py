@@ -44,8 +44,9 @@ def train(
         help="Env steps from one video's start to the next.")] = 2000,
     logs_dir: LogsDir = None,
     nproc: Annotated[int | None, typer.Option(
-        help="Data-parallel ranks on this host, each with --num-envs envs (rsl_rl, skrl); the "
-             "same as torchrun --nproc-per-node N -m labcli train ...")] = None,
+        help="Data-parallel ranks on this host, each with --num-envs envs (rsl_rl, skrl): "
+             "the batch grows with the ranks, the other settings stay; the same as torchrun "
+             "--nproc-per-node N -m labcli train ... (docs/scale.md)")] = None,
     nnodes: Annotated[str | None, typer.Option(
         help="With --nproc: hosts taking part, N or MIN:MAX (run the command on each).")] = None,
     rdzv_endpoint: Annotated[str | None, typer.Option(

@@ -5,15 +5,19 @@ The libraries' updates are launch-bound at lab's scale: each mini-batch step is 
 small kernels and a few host syncs (loss reads, the adaptive learning rate's KL test), ~6 ms on
 an H100 whatever the batch size. A plugin writes its library's mini-batch steps without host
 syncs (the learning rate a device tensor that Adam reads, the losses summed on the device) and
-`UpdateGraph` captures them once and replays them each iteration: one sync an update.
+`UpdateGraph` captures them once and replays them each iteration: one sync an update. In a
+data-parallel run the steps average their gradients and the KL over the ranks with
+`average_over_ranks`, NCCL collectives that the graph captures with the rest.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable
+import weakref
+from collections.abc import Callable, Iterable, Sequence
 from typing import Any
 
 import torch
+import torch.distributed as dist
 from torch import nn
 
 Key = tuple[nn.Module, str]
@@ -48,6 +52,29 @@ def eager_adam_state(state: dict[str, Any]) -> dict[str, Any]:
     return {**state, "param_groups": groups, "state": entries}
 
 
+def average_over_ranks(tensors: Sequence[torch.Tensor]) -> None:
+    """`tensors` (a mini-batch's gradients, a KL) averaged over the ranks of a data-parallel
+    run, in place and in one collective: the sum over the ranks, divided by their number, as the
+    libraries' own reductions compute it. No host sync, so that `UpdateGraph` captures it; on
+    every rank the same result, so the ranks' agents stay equal."""
+    flat = torch.cat([t.reshape(-1) for t in tensors])
+    dist.all_reduce(flat)
+    flat /= dist.get_world_size()
+    for tensor, part in zip(tensors, flat.split([t.numel() for t in tensors]), strict=True):
+        tensor.copy_(part.view_as(tensor))
+
+
+_live: weakref.WeakSet[UpdateGraph] = weakref.WeakSet()
+
+
+def release_graphs() -> None:
+    """Free every captured update graph of this process (a later `replay` captures again).
+    NCCL keeps a communicator whose collectives a graph holds until the graph is freed, and
+    `destroy_process_group` waits for it: on two H100s it hung there, after training."""
+    for graph in list(_live):
+        graph.release()
+
+
 class UpdateGraph:
     """`steps` (every mini-batch step of one update, without host syncs) captured on the first
     `replay` and replayed from then on.
@@ -67,6 +94,12 @@ class UpdateGraph:
         self._graph: torch.cuda.CUDAGraph | None = None
         self._reads: dict[Key, torch.Tensor] = {}
         self._writes: dict[Key, torch.Tensor] = {}
+        _live.add(self)
+
+    def release(self) -> None:
+        if self._graph is not None:
+            self._graph.reset()
+            self._graph = None
 
     def replay(self) -> None:
         if self._graph is None:
@@ -109,7 +142,9 @@ class UpdateGraph:
         # Captured on the warm-up's stream: the libraries keep the last step's autograd graph
         # (their distributions hold it), and gradient nodes made on another stream would
         # synchronize inside the capture.
-        with torch.cuda.graph(self._graph, stream=side):
+        # Thread-local: NCCL's watchdog thread queries the events of earlier collectives while
+        # this thread captures, which a global capture would count as an error.
+        with torch.cuda.graph(self._graph, stream=side, capture_error_mode="thread_local"):
             self.steps()
         self._writes = self._current()
         with torch.no_grad():

@@ -21,6 +21,7 @@ import torch
 import torch.distributed as dist
 
 from labcli.errors import LabError, first_line
+from labcli.plugins.update_graph import release_graphs
 from labcli.runs.ranks import TORCHRUN_VARIABLES, Ranks
 
 # Long enough for a rank that builds its envs slowly (MuJoCo Warp compiles its kernels for a
@@ -87,6 +88,7 @@ def process_group(ranks: Ranks, device: str) -> Iterator[None]:
             # runs of tests/test_distributed.py and test_interrupt.py on a 2-core VM, 0 of 6 with.
             with contextlib.suppress(RuntimeError):
                 dist.barrier()
+        release_graphs()
         dist.destroy_process_group()
 
 

@@ -2,10 +2,11 @@
 
 All mini-batch steps of an update (forward, losses, backward, gradient clipping, Adam, the
 adaptive learning rate) run without host syncs and are replayed as one graph
-(`labcli.plugins.update_graph`). The numbers are RSL-RL's (a GPU test compares updates with the
-library's own, tests/test_rsl_rl_graph.py); on the CPU, or with what the graph leaves out
-(recurrent models, RND, symmetry, several GPUs, mixed precision), the update is the library's,
-with its Adam fused.
+(`labcli.plugins.update_graph`); on several GPUs the gradients and the KL are averaged over
+the ranks inside it. The numbers are RSL-RL's (GPU tests compare updates with the library's own,
+on one GPU and on two, tests/test_rsl_rl_graph.py); on the CPU, or with what the graph leaves
+out (recurrent models, RND, symmetry, mixed precision), the update is the library's, with its
+Adam fused.
 """
 
 from __future__ import annotations
@@ -18,7 +19,12 @@ from tensordict import TensorDict
 from torch import nn
 
 from labcli.plugins.policy import torch_threads
-from labcli.plugins.update_graph import UpdateGraph, adapt_adam, eager_adam_state
+from labcli.plugins.update_graph import (
+    UpdateGraph,
+    adapt_adam,
+    average_over_ranks,
+    eager_adam_state,
+)
 
 
 class LabPPO(PPO):
@@ -31,7 +37,7 @@ class LabPPO(PPO):
         super().__init__(*args, **kwargs)
         self.graphed = (cuda_graph and torch.device(self.device).type == "cuda"
                         and isinstance(self.optimizer, torch.optim.Adam)
-                        and not (self.rnd or self.symmetry or self.is_multi_gpu
+                        and not (self.rnd or self.symmetry
                                  or self.use_mixed_precision or self.actor.is_recurrent
                                  or self.critic.is_recurrent))
         self._batch: dict[str, Any] = {}
@@ -39,6 +45,7 @@ class LabPPO(PPO):
         if self.graphed:
             self._lr = torch.zeros((), device=self.device)
             self._sums = torch.zeros(3, device=self.device)  # value, surrogate, entropy
+            self._parameters = [*self.actor.parameters(), *self.critic.parameters()]
             self._graph = UpdateGraph(self._steps, self.optimizer, [self.actor, self.critic],
                                       [self._lr])
         self._adapt_adam()
@@ -132,6 +139,8 @@ class LabPPO(PPO):
         if self.desired_kl is not None and self.schedule == "adaptive":
             with torch.no_grad():
                 kl = self.actor.get_kl_divergence(old_params, params).mean()
+                if self.is_multi_gpu:
+                    average_over_ranks([kl])
                 lr = self._lr
                 lowered = torch.clamp(lr / 1.5, min=1e-5)
                 raised = torch.clamp(lr * 1.5, max=1e-2)
@@ -152,6 +161,8 @@ class LabPPO(PPO):
 
         self.optimizer.zero_grad(set_to_none=False)
         loss.backward()
+        if self.is_multi_gpu:
+            average_over_ranks([p.grad for p in self._parameters if p.grad is not None])
         nn.utils.clip_grad_norm_(self.actor.parameters(), self.max_grad_norm)
         nn.utils.clip_grad_norm_(self.critic.parameters(), self.max_grad_norm)
         self.optimizer.step()

@@ -4,15 +4,16 @@ skrl's update reads three losses per mini-batch and the adaptive learning rate's
 from the device. Here the returns and advantages are skrl's own (`compute_gae`), and every
 mini-batch step of every epoch (the observation scaler's update, forward, losses, backward,
 gradient clipping, Adam, the KL-adaptive learning rate) runs without host syncs and is replayed
-as one graph (`labcli.plugins.update_graph`). The numbers are skrl's (a GPU test compares
-updates with the library's own, tests/test_skrl_graph.py); on the CPU, or with what the graph
-leaves out (KL early stopping, other schedulers, mixed precision, several processes, a shared
-policy and value model), the update is the library's, with its Adam fused.
+as one graph (`labcli.plugins.update_graph`); on several GPUs the gradients, the KL and the
+observation scaler's statistics are averaged over the ranks inside it. The numbers are skrl's
+(GPU tests compare updates with the library's own, on one GPU and on two,
+tests/test_skrl_graph.py); on the CPU, or with what the graph leaves out (KL early stopping,
+other schedulers, mixed precision, a shared policy and value model), the update is the
+library's, with its Adam fused.
 """
 
 from __future__ import annotations
 
-import itertools
 import logging
 from typing import Any
 
@@ -27,7 +28,12 @@ from skrl.resources.schedulers.torch import KLAdaptiveLR
 from torch import nn
 
 from labcli.plugins.policy import torch_threads
-from labcli.plugins.update_graph import UpdateGraph, adapt_adam, eager_adam_state
+from labcli.plugins.update_graph import (
+    UpdateGraph,
+    adapt_adam,
+    average_over_ranks,
+    eager_adam_state,
+)
 
 
 def join_ranks(rank: int, local_rank: int, world_size: int) -> None:
@@ -75,7 +81,7 @@ class LabSkrlPPO(PPO):
             cuda_graph and torch.device(self.device).type == "cuda"
             and isinstance(self.optimizer, torch.optim.Adam) and self.policy is not self.value
             and (self.scheduler is None or isinstance(self.scheduler, KLAdaptiveLR))
-            and not (cfg.kl_threshold or cfg.mixed_precision or config.torch.is_distributed))
+            and not (cfg.kl_threshold or cfg.mixed_precision))
         self.fused = isinstance(self.optimizer, torch.optim.Adam)
         if self.graphed:
             self._lr = torch.zeros((), device=self.device)
@@ -166,7 +172,10 @@ class LabSkrlPPO(PPO):
             kls = [self._step(self._shuffles[epoch, lo:hi], train=not epoch)
                    for lo, hi in self._bounds]
             if isinstance(self.scheduler, KLAdaptiveLR):
-                self._adapt_learning_rate(torch.stack(kls).mean())
+                kl = torch.stack(kls).mean()
+                if config.torch.is_distributed:
+                    average_over_ranks([kl])
+                self._adapt_learning_rate(kl)
         with torch.no_grad():  # skrl reports the std of the last mini-batch's distribution
             self._sums[3] = self.policy.distribution(role="policy").stddev.mean()
 
@@ -211,10 +220,11 @@ class LabSkrlPPO(PPO):
 
         self.optimizer.zero_grad(set_to_none=False)
         (policy_loss + entropy_loss + value_loss).backward()
+        parameters = [*self.policy.parameters(), *self.value.parameters()]
+        if config.torch.is_distributed:
+            average_over_ranks([p.grad for p in parameters if p.grad is not None])
         if cfg.grad_norm_clip > 0:
-            nn.utils.clip_grad_norm_(
-                itertools.chain(self.policy.parameters(), self.value.parameters()),
-                cfg.grad_norm_clip)
+            nn.utils.clip_grad_norm_(parameters, cfg.grad_norm_clip)
         self.optimizer.step()
         with torch.no_grad():
             self._sums[:3] += torch.stack([policy_loss, value_loss, entropy_loss])
