@@ -264,6 +264,24 @@ def test_ctrl_c_checkpoints_every_rank_and_the_run_resumes(tmp_path):
 
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="finds ranks through /proc")
+def test_ranks_stop_with_a_checkpoint_when_their_launcher_is_killed(tmp_path):
+    """SIGKILL, or the OOM killer, gives the launcher no chance to stop its ranks: they stop
+    themselves, as SIGTERM stops them, instead of training on unwatched."""
+    proc = _start(tmp_path, *ENDLESS)
+    run_dir = _run_dir_with_checkpoints(tmp_path, 2, proc)
+    ranks = [_rank_pid(proc.pid, rank) for rank in (0, 1)]
+    proc.kill()
+    proc.wait()
+    deadline = time.monotonic() + 15
+    while any(Path(f"/proc/{pid}").exists() for pid in ranks):
+        assert time.monotonic() < deadline, "the ranks outlived their launcher by 15 s"
+        time.sleep(0.1)
+    summary = json.loads((run_dir / rundir.SUMMARY).read_text())
+    assert summary["state"] == rundir.INTERRUPTED
+    assert summary["checkpoint"] == f"model_{summary['iterations']}.pt"
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="finds ranks through /proc")
 def test_sigterm_to_one_rank_stops_them_all_with_a_checkpoint(tmp_path):
     proc = _start(tmp_path, *ENDLESS)
     run_dir = _run_dir_with_checkpoints(tmp_path, 2, proc)

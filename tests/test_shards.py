@@ -260,6 +260,38 @@ def test_a_worker_that_dies_is_one_line_not_a_hang(sharded):
         sharded.step(torch.zeros(128, 1))
 
 
+ORPHANED = """
+import sys, time
+from labcli.envs.shards import ShardedVecEnv
+from labcli.plugins import registry
+spec = registry.get_task("cartpole")
+env = ShardedVecEnv(spec, spec.config_class(num_envs=128), shards=2)
+print(env._workers[0].process.pid, flush=True)
+time.sleep(600)
+"""
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
+def test_workers_end_when_their_parent_is_killed():
+    """Killed without a chance to close its shards (SIGKILL, the OOM killer), a process leaves
+    no worker behind to burn the cores."""
+    parent = subprocess.Popen([sys.executable, "-c", ORPHANED], stdout=subprocess.PIPE, text=True)
+    worker = int(parent.stdout.readline())
+    parent.kill()
+    parent.wait()
+    deadline = time.monotonic() + 5
+    while os.path.exists(f"/proc/{worker}") and _state(worker) != "Z":
+        assert time.monotonic() < deadline, "the worker outlived its parent by 5 s"
+        time.sleep(0.05)
+
+
+def _state(pid: int) -> str:
+    try:
+        return open(f"/proc/{pid}/stat").read().rsplit(")", 1)[1].split()[0]
+    except OSError:
+        return "gone"
+
+
 class FailsInAWorker(Cartpole):
     """Cartpole whose third step fails in every shard but the first (a worker's)."""
 

@@ -13,6 +13,7 @@ fixed seed gives the same outputs whatever the number of shards.
 from __future__ import annotations
 
 import contextlib
+import os
 import signal
 import sys
 import time
@@ -54,6 +55,9 @@ SPIN_S = 0.002
 # call each, ~3 µs on a VM, 15 of them in series in the caller on 16 cores): the caller has sent
 # a command; the worker's step failed (its error is in the pipe).
 COMMAND, FAILED = 0, 1
+# How often a waiting worker checks that its parent lives: a worker ends within this long of
+# the caller's death.
+ORPHAN_CHECK_S = 0.5
 
 
 def shard_count(num_envs: int, threads: int | None) -> int:
@@ -101,7 +105,9 @@ def _buffers(env: LabVecEnv, num_envs: int, count: int) -> dict[str, torch.Tenso
 def _serve(spec: TaskSpec, cfg: TaskConfig, seed: int, mode: AutoresetMode, shard: _Shard,
            total: int, index: int, buffers: dict[str, torch.Tensor], board: ChunkBoard,
            go: Any, done: Any, conn: Any) -> None:
-    """A worker process: build its shard, then serve steps and commands until told to close."""
+    """A worker process: build its shard, then serve steps and commands until told to close,
+    or until its parent is gone."""
+    parent = mp.parent_process().pid
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the caller's: it stops in order
     torch.set_num_threads(1)
     try:
@@ -116,7 +122,7 @@ def _serve(spec: TaskSpec, cfg: TaskConfig, seed: int, mode: AutoresetMode, shar
     flags = buffers["flags"].numpy()[index]
     while True:
         if not _spin_acquire(go):
-            go.acquire()
+            _acquire_while_parent_lives(go, parent)
         if not flags[COMMAND]:
             try:
                 end.step()
@@ -143,6 +149,15 @@ def _spin_acquire(semaphore: Any) -> bool:
         if time.perf_counter() > deadline:
             return False
     return True
+
+
+def _acquire_while_parent_lives(semaphore: Any, parent: int) -> None:
+    """Take `semaphore`, waking every `ORPHAN_CHECK_S` to see whether the process that
+    started this one is still its parent: one killed without a chance to close its shards
+    (SIGKILL, the OOM killer) leaves them waiting here, and they end instead."""
+    while not semaphore.acquire(timeout=ORPHAN_CHECK_S):
+        if os.getppid() != parent:
+            os._exit(1)
 
 
 def _report(exc: BaseException) -> str:

@@ -12,6 +12,9 @@ from __future__ import annotations
 import contextlib
 import os
 import re
+import signal
+import threading
+import time
 import traceback
 from collections.abc import Iterator
 from datetime import timedelta
@@ -28,6 +31,8 @@ from labcli.runs.ranks import TORCHRUN_VARIABLES, Ranks
 # minute on first use) or waits while rank 0 writes a checkpoint; a rank that died fails the
 # others at once (its sockets close), so this only bounds a rank that hangs.
 TIMEOUT = timedelta(minutes=10)
+# How often a rank checks that its launcher lives.
+ORPHAN_CHECK_S = 0.5
 
 
 class RankLost(LabError):
@@ -73,6 +78,7 @@ def process_group(ranks: Ranks, device: str) -> Iterator[None]:
         raise RankLost(f"rank {ranks.rank}: the ranks did not meet: {first_line(exc)}",
                        "check that every rank runs, with the same MASTER_ADDR and MASTER_PORT"
                        ) from None
+    _stop_when_orphaned()
     # The group is lab's: a library reading torchrun's variables would set up NCCL again
     # (skrl does, when imported); each is told the ranks through TrainContext instead.
     consumed = {name: os.environ.pop(name) for name in TORCHRUN_VARIABLES if name in os.environ}
@@ -90,6 +96,22 @@ def process_group(ranks: Ranks, device: str) -> Iterator[None]:
                 dist.barrier()
         release_graphs()
         dist.destroy_process_group()
+
+
+def _stop_when_orphaned() -> None:
+    """SIGTERM to this rank once the launcher that started it is gone (killed without a
+    chance to stop its ranks: SIGKILL, the OOM killer): the ranks stop after the iteration, as
+    a scheduler's SIGTERM stops them, and the run keeps its checkpoint, instead of training on
+    unwatched. Polled: a parent's death signal would also fire when the launcher's thread that
+    started the rank ends."""
+    parent = os.getppid()
+
+    def watch() -> None:
+        while os.getppid() == parent:
+            time.sleep(ORPHAN_CHECK_S)
+        os.kill(os.getpid(), signal.SIGTERM)
+
+    threading.Thread(target=watch, name="lab-launcher-watch", daemon=True).start()
 
 
 def _flags(device: str, values: list[float]) -> torch.Tensor:
