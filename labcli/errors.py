@@ -20,6 +20,15 @@ class LabError(Exception):
         return f"{self.message} ({self.hint})" if self.hint else self.message
 
 
+class LabValueError(LabError, ValueError):
+    """A bad value: also Python's ValueError, which a library's caller (gymnasium's clients)
+    catches, as gymnasium's own envs raise it."""
+
+
+class LabTypeError(LabError, TypeError):
+    """A value of the wrong type: also Python's TypeError, as gymnasium's own envs raise it."""
+
+
 class TrainingDiverged(LabError):
     """Training cannot go on (the policy emits non-finite actions); the run dir keeps its last
     good checkpoint. Exit code 3 tells it apart from bad input."""

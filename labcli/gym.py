@@ -11,7 +11,9 @@
 
 `gym.make_vec("labcli.gym:lab/cartpole", ...)` imports this module itself. Keyword arguments of
 `gym.make_vec` and `gym.make` are those of `make_env`: the task config's fields (as `--set
-env.KEY=VALUE` sets them), `backend`, `device`, `seed`, `overrides`, `autoreset_mode`.
+env.KEY=VALUE` sets them), `backend`, `device`, `seed`, `overrides`, `autoreset_mode` (not
+`gym.make`'s: one env has no `num_envs` and no autoreset). A bad one is a ValueError or
+TypeError naming it (also a `labcli.errors.LabError`), raised before anything is built.
 """
 
 from __future__ import annotations
@@ -21,6 +23,7 @@ from typing import Any
 
 import gymnasium as gym
 
+from labcli.errors import LabTypeError
 from labcli.plugins import registry
 
 NAMESPACE = "lab"
@@ -36,11 +39,18 @@ def make_env(task: str, num_envs: int | None = None, *, backend: str | None = No
     where it is usable); `seed` seeds its resets. `autoreset_mode`: "same_step" (the default:
     an ended env resets within the step, its last observation in `info["final_obs"]`) or
     "next_step" (it resets on the next step, as gymnasium's own vector envs do, which its
-    observation wrappers need). A bad name or value is a LabError naming it."""
+    observation wrappers need). A bad name or value is a LabError naming it (a ValueError or
+    TypeError for `seed`, `overrides` and `autoreset_mode`)."""
+    from labcli.envs.env import checked_seed
     from labcli.envs.make import make_env as build
     from labcli.runs import config as configs
     from labcli.runs.session import check_device
 
+    seed = checked_seed(seed)
+    if isinstance(overrides, (str, bytes)) or not all(isinstance(item, str)
+                                                      for item in overrides):
+        raise LabTypeError(f"overrides must be a list of 'KEY=VALUE' strings, got "
+                           f"{overrides!r:.80}", "e.g. overrides=['env.episode_length_s=3']")
     spec = registry.get_task(task)
     layers = [config, configs.parse_set(_with_section(overrides))["env"]]
     if num_envs is not None:
@@ -53,6 +63,13 @@ def make_env(task: str, num_envs: int | None = None, *, backend: str | None = No
 def make_single(task: str, render_mode: str | None = None, **kwargs: Any) -> Any:
     """One env of `task` as a plain `gymnasium.Env` (NumPy), for `gym.make("lab/<task>")`."""
     from labcli.envs.single import SingleEnv
+
+    for name in ("num_envs", "autoreset_mode"):  # make_env's, which one env has no use for
+        if name in kwargs:
+            raise LabTypeError(
+                f"gym.make('{NAMESPACE}/{task}') makes one env, which takes no {name}: "
+                f"gym.make_vec('{NAMESPACE}/{task}', {name}={kwargs[name]!r:.80}) makes a "
+                "batched env")
 
     return SingleEnv(make_env(task, 1, autoreset_mode="next_step", **kwargs), render_mode)
 

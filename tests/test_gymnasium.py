@@ -202,3 +202,128 @@ def test_a_pickled_or_copied_env_steps_on_exactly_as_the_original(how, mode):
     finally:
         twin.close()
         envs.close()
+
+
+# Bad input: a ValueError or TypeError naming the argument, as gymnasium's own envs raise --------
+def _one_line(err: pytest.ExceptionInfo, *phrases: str) -> None:
+    message = str(err.value)
+    assert isinstance(err.value, LabError) and "\n" not in message, message
+    for phrase in phrases:
+        assert phrase in message, (phrase, message)
+
+
+@pytest.mark.parametrize(("make", "kwargs", "error", "phrases"), [
+    ("make_vec", {"seed": -1}, ValueError, ["seed must be a non-negative int, got -1"]),
+    ("make_vec", {"seed": "x"}, TypeError, ["seed must be a non-negative int, got 'x' (str)"]),
+    ("make_vec", {"seed": 1.5}, TypeError, ["got 1.5 (float)"]),
+    ("make", {"seed": -1}, ValueError, ["seed must be a non-negative int, got -1"]),
+    ("make", {"num_envs": 8}, TypeError,
+     ["gym.make('lab/cartpole') makes one env, which takes no num_envs",
+      "gym.make_vec('lab/cartpole', num_envs=8)"]),
+    ("make", {"autoreset_mode": "same_step"}, TypeError, ["takes no autoreset_mode"]),
+    ("make_vec", {"autoreset_mode": "disabled"}, ValueError,
+     ["autoreset_mode 'disabled' is not one lab's env has", "'same_step', 'next_step'"]),
+    ("make_vec", {"autoreset_mode": AutoresetMode.DISABLED}, ValueError,
+     ["AutoresetMode.SAME_STEP"]),
+    ("make_vec", {"autoreset_mode": 3}, TypeError, ["autoreset_mode must be an AutoresetMode or a "
+                                                     "string, got 3 (int)"]),
+    ("make_vec", {"overrides": "env.cart_bound=2"}, TypeError,
+     ["overrides must be a list of 'KEY=VALUE' strings"]),
+])
+def test_bad_arguments_of_gym_make_are_value_or_type_errors_naming_them(make, kwargs, error,
+                                                                        phrases):
+    with pytest.raises(error) as err:
+        envs = getattr(gym, make)("lab/cartpole", **kwargs)
+        envs.close()
+    _one_line(err, *phrases)
+
+
+@pytest.mark.parametrize("mode", ["same_step", "SameStep", "SAME_STEP", AutoresetMode.SAME_STEP,
+                                  "next_step", "NextStep", AutoresetMode.NEXT_STEP])
+def test_autoreset_mode_is_gymnasium_s_enum_its_value_or_its_name(mode):
+    envs = gym.make_vec("lab/cartpole", num_envs=2, autoreset_mode=mode)
+    try:
+        want = AutoresetMode.NEXT_STEP if "next" in str(mode).lower() else AutoresetMode.SAME_STEP
+        assert envs.metadata["autoreset_mode"] is envs.autoreset_mode is want
+    finally:
+        envs.close()
+
+
+@pytest.mark.parametrize(("kwargs", "error", "phrases"), [
+    ({"seed": -1}, ValueError, ["reset(seed=...) must be None, a non-negative int or a list of 4 "
+                                "non-negative ints (one per env), got -1"]),
+    ({"seed": "x"}, TypeError, ["got 'x'"]),
+    ({"seed": 1.5}, TypeError, ["got 1.5"]),
+    ({"seed": [1, 2, 3]}, ValueError, ["a list of 4 non-negative ints", "got [1, 2, 3]"]),
+    ({"seed": [1, 2, 3, "x"]}, TypeError, ["a list of 4 non-negative ints"]),
+    ({"options": {"reset_mask": [True]}}, ValueError,
+     ["options['reset_mask'] must be 4 bools, one per env", "got shape (1,)"]),
+    ({"options": {"reset_mask": np.ones((1, 4), bool)}}, ValueError, ["got shape (1, 4)"]),
+    ({"options": {"reset_mask": [1, 0, 1, 0]}}, TypeError, ["got dtype int64"]),
+    ({"options": {"reset_mask": torch.zeros(4)}}, TypeError, ["got dtype torch.float32"]),
+    ({"options": {"reset_mask": "abcd"}}, TypeError, ["got str"]),
+    ({"options": {"reset_mask": True}}, TypeError, ["got bool"]),
+    ({"options": "reset_mask"}, TypeError, ["reset(options=...) must be a dict or None, got str"]),
+    ({"seed": 5, "options": {"reset_mask": [True]}}, ValueError, ["reset_mask"]),
+])
+def test_bad_reset_seeds_and_masks_are_value_or_type_errors_that_change_nothing(kwargs, error,
+                                                                               phrases):
+    envs = gym.make_vec("lab/cartpole", num_envs=4, seed=1)
+    try:
+        obs, _ = envs.reset(seed=3)
+        envs.step(torch.full((4, 1), 0.5))
+        before = envs.get_state()
+        with pytest.raises(error) as err:
+            envs.reset(**kwargs)
+        _one_line(err, *phrases)
+        after = envs.get_state()
+        assert all(torch.equal(before[k], after[k]) for k in before) and envs.np_random_seed == 3
+    finally:
+        envs.close()
+
+
+@pytest.mark.parametrize("mask", [np.array([True, False, True, False]),
+                                  torch.tensor([True, False, True, False]),
+                                  [True, False, True, False]])
+def test_a_reset_mask_is_a_numpy_array_a_tensor_or_a_list_of_bools(mask):
+    envs = gym.make_vec("lab/cartpole", num_envs=4, seed=1)
+    try:
+        envs.reset()
+        envs.step(torch.ones(4, 1))
+        length = envs.episode_length.clone()
+        envs.reset(options={"reset_mask": mask})
+        assert envs.episode_length.tolist() == [0, length[1], 0, length[3]]
+    finally:
+        envs.close()
+
+
+@pytest.mark.parametrize("make", ["make_vec", "make"])
+def test_a_closed_env_says_so_on_step_reset_and_render(make):
+    env = getattr(gym, make)("lab/cartpole", **({"num_envs": 2} if make == "make_vec"
+                                                else {"render_mode": "rgb_array"}))
+    env.reset()
+    env.close()
+    action = torch.zeros(2, 1) if make == "make_vec" else np.zeros(1, np.float32)
+    for call in (lambda: env.step(action), env.reset, env.unwrapped.render):
+        with pytest.raises(ValueError) as err:
+            call()
+        assert isinstance(err.value, gym.error.ClosedEnvironmentError)
+        _one_line(err, "after close(): this env of task 'cartpole' is closed")
+
+
+def test_a_sharded_env_takes_one_seed_per_env_of_the_whole_env_and_refuses_a_step_once_closed():
+    sharded = labcli.gym.make_env("cartpole", 128, threads=2)
+    whole = labcli.gym.make_env("cartpole", 128, threads=1)
+    try:
+        assert type(sharded).__name__ == "ShardedVecEnv" and isinstance(whole, LabVecEnv)
+        seeds = list(range(128))
+        assert torch.equal(sharded.reset(seed=seeds)[0], whole.reset(seed=seeds)[0])
+        with pytest.raises(ValueError) as err:
+            sharded.reset(seed=seeds[:64])
+        _one_line(err, "a list of 128 non-negative ints")
+    finally:
+        sharded.close()
+        whole.close()
+    with pytest.raises(ValueError) as err:
+        sharded.step(torch.zeros(128, 1))
+    _one_line(err, "step() after close()")

@@ -3,7 +3,8 @@
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+import reprlib
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, fields
 from typing import TYPE_CHECKING, Any
 
@@ -22,7 +23,7 @@ from labcli.envs.random import EnvRandom
 from labcli.envs.render.scene import SceneRenderer
 from labcli.envs.sim import default_backend, make_sim
 from labcli.envs.spec import TaskSpec
-from labcli.errors import LabError, first_line
+from labcli.errors import LabError, LabTypeError, LabValueError, first_line
 
 if TYPE_CHECKING:
     from labcli.envs.sim.chunks import ShardPhysics
@@ -55,6 +56,7 @@ class LabVecEnv(gym.vector.VectorEnv):
         of `total` (the cpu backend's env shards; they draw as those envs of one env would);
         `physics`: where and how such a shard's physics steps (`labcli.envs.sim.chunks`)."""
         self.autoreset_mode = _autoreset_mode(autoreset_mode)
+        seed = checked_seed(seed)
         self.metadata = {**self.metadata, "autoreset_mode": self.autoreset_mode}
         self.task_spec = spec
         self.cfg = cfg
@@ -103,6 +105,7 @@ class LabVecEnv(gym.vector.VectorEnv):
         # (`EnvRandom.only_for`); the shortcuts change no output.
         self._shortcuts = self.device.type == "cpu" and not cfg.compile
         first, total = shard or (0, self.num_envs)
+        self._whole = total  # a list of seeds has one per env of the whole env (`one_seed`)
         self.rng = EnvRandom(self.num_envs, self.device, first, total,
                              reads_masks=self._shortcuts)
         self.rng.manual_seed(seed)
@@ -155,11 +158,14 @@ class LabVecEnv(gym.vector.VectorEnv):
     # gymnasium API ---------------------------------------------------------------------------
     def reset(self, *, seed: int | Sequence[int] | None = None,
               options: dict[str, Any] | None = None):
+        if self.closed:
+            raise closed_error("reset", self.task_spec.name)
         if seed is not None:
             seed = self.one_seed(seed)
+        mask = reset_mask(options, self.num_envs, self.device)  # all checked, then done
+        if seed is not None:
             self.rng.manual_seed(seed)
             self._np_random, self._np_random_seed = gym.utils.seeding.np_random(seed)
-        mask = (options or {}).get("reset_mask")
         if mask is None and self._resume_state is not None:
             self.set_state(self._resume_state)
             self._resume_state = None
@@ -168,22 +174,30 @@ class LabVecEnv(gym.vector.VectorEnv):
             self._reset_envs(self._all)
             self._stats.zero_()
         else:  # gymnasium's way to reset some envs only
-            self._reset_envs(torch.as_tensor(mask, dtype=torch.bool, device=self.device))
+            self._reset_envs(mask)
         return self.observations(), {}
 
     def one_seed(self, seed: int | Sequence[int]) -> int:
         """All envs share one seed: a list of seeds, one per env (as gymnasium's
-        SyncVectorEnv takes them), is folded into one seed that depends on every one."""
-        if isinstance(seed, (int, np.integer)):
-            return int(seed)
-        seeds = list(seed)
-        if len(seeds) != self.num_envs or not all(
-                isinstance(s, (int, np.integer)) and s >= 0 for s in seeds):
-            raise LabError(f"reset(seed=...) got {seeds!r}",
-                           f"pass one int, or a list of {self.num_envs} non-negative ints")
+        SyncVectorEnv takes them), is folded into one seed that depends on every one (a shard's:
+        one per env of the whole env). Anything else is a LabTypeError or LabValueError saying
+        what reset(seed=...) takes."""
+        takes = (f"reset(seed=...) must be None, a non-negative int or a list of "
+                 f"{self._whole} non-negative ints (one per env), got {_shown(seed)}")
+        seeds = seed.tolist() if isinstance(seed, (np.ndarray, torch.Tensor)) else seed
+        if _is_int(seeds):
+            if seeds < 0:
+                raise LabValueError(takes)
+            return int(seeds)
+        if not isinstance(seeds, (list, tuple)) or not all(_is_int(s) for s in seeds):
+            raise LabTypeError(takes)
+        if len(seeds) != self._whole or any(s < 0 for s in seeds):
+            raise LabValueError(takes)
         return int(np.random.SeedSequence([int(s) for s in seeds]).generate_state(1)[0])
 
     def step(self, actions: torch.Tensor):
+        if self.closed:
+            raise closed_error("step", self.task_spec.name)
         actions = checked_actions(actions, self.action_space.shape, self.device)
         if self._graphed is not None:
             return self._graphed(actions)
@@ -203,6 +217,8 @@ class LabVecEnv(gym.vector.VectorEnv):
         outputs there would be one op more for each. `actions` are taken as they are: a float32
         `[num_envs, actions]` tensor on the env's device, which the sharded env checked before
         it copied them into the shared buffer."""
+        if self.closed:
+            raise closed_error("step", self.task_spec.name)
         if self._compiled is not None:
             self._compiled_step(actions, out)
         else:
@@ -330,10 +346,14 @@ class LabVecEnv(gym.vector.VectorEnv):
     # looking at env 0 ------------------------------------------------------------------------
     def render(self) -> np.ndarray:
         """Env 0 as an RGB image `[height, width, 3]`, rendered offscreen."""
+        if self.closed:
+            raise closed_error("render", self.task_spec.name)
         return self._scene().render(self.sim.qpos[0], self.sim.qvel[0])
 
     def mj_scene(self) -> tuple[mujoco.MjModel, mujoco.MjData]:
         """The model and an MjData holding env 0's current state, for MuJoCo's viewer."""
+        if self.closed:
+            raise closed_error("mj_scene", self.task_spec.name)
         renderer = self._scene()
         return renderer.model, renderer.sync(self.sim.qpos[0], self.sim.qvel[0])
 
@@ -564,18 +584,82 @@ def checked_actions(actions: Any, shape: Sequence[int], device: torch.device) ->
     return actions
 
 
+class ClosedEnvError(LabValueError, gym.error.ClosedEnvironmentError):
+    """A closed env asked to reset, step or render: a ValueError, as Python's closed files raise,
+    and gymnasium's ClosedEnvironmentError, as its AsyncVectorEnv raises."""
+
+
+def closed_error(method: str, task: str) -> ClosedEnvError:
+    return ClosedEnvError(f"{method}() after close(): this env of task '{task}' is closed",
+                          "make a new env")
+
+
+def _is_int(value: Any) -> bool:
+    """An int as gymnasium's seeds are (NumPy's too), not a bool."""
+    return isinstance(value, (int, np.integer)) and not isinstance(value, (bool, np.bool_))
+
+
+def _shown(value: Any) -> str:
+    """`value` as an error quotes it: short, and on one line (a tensor's repr has several)."""
+    return " ".join(reprlib.repr(value).split())
+
+
+def checked_seed(seed: Any, what: str = "seed") -> int:
+    """`seed` as an int; a LabTypeError or LabValueError unless it is a non-negative int (any
+    size, as gymnasium takes them), checked where an env is made, before anything is built."""
+    if not _is_int(seed) or seed < 0:
+        error = LabValueError if _is_int(seed) else LabTypeError
+        raise error(f"{what} must be a non-negative int, got {_shown(seed)}"
+                    + ("" if _is_int(seed) else f" ({type(seed).__name__})"))
+    return int(seed)
+
+
+def reset_mask(options: Any, num_envs: int, device: torch.device | str) -> torch.Tensor | None:
+    """`options["reset_mask"]` of `reset(options=...)` as a bool tensor on `device` (None: no
+    mask). gymnasium's vector envs take a NumPy bool array of shape `(num_envs,)`; lab's also a
+    torch bool tensor or a list of bools. Anything else (ints, which could be indices; the wrong
+    shape) is a LabTypeError or LabValueError naming what was given."""
+    if options is None:
+        return None
+    if not isinstance(options, Mapping):
+        raise LabTypeError(f"reset(options=...) must be a dict or None, got "
+                           f"{type(options).__name__}")
+    mask = options.get("reset_mask")
+    if mask is None:
+        return None
+    takes = (f"options['reset_mask'] must be {num_envs} bools, one per env (a NumPy array, "
+             "torch tensor or list of dtype bool)")
+    if isinstance(mask, (list, tuple)):
+        try:
+            mask = np.asarray(mask)
+        except ValueError:  # ragged
+            raise LabValueError(f"{takes}, got a ragged {type(mask).__name__}") from None
+    if not isinstance(mask, (np.ndarray, torch.Tensor)):
+        raise LabTypeError(f"{takes}, got {type(mask).__name__}")
+    if mask.dtype not in (np.bool_, torch.bool):
+        raise LabTypeError(f"{takes}, got dtype {mask.dtype}")
+    if tuple(mask.shape) != (num_envs,):
+        raise LabValueError(f"{takes}, got shape {tuple(mask.shape)}")
+    return torch.as_tensor(mask, device=device)
+
+
 def _rebuilt(spec: TaskSpec, cfg: TaskConfig, backend: str, device: str,
              autoreset_mode: AutoresetMode) -> LabVecEnv:
     return LabVecEnv(spec, cfg, backend=backend, device=device, autoreset_mode=autoreset_mode)
 
 
 def _autoreset_mode(mode: AutoresetMode | str) -> AutoresetMode:
-    """An AutoresetMode, or its name in any spelling ("NextStep", "next_step")."""
+    """An AutoresetMode, or its value or name in any spelling ("NextStep", "next_step",
+    "NEXT_STEP"); anything else is a LabValueError (a LabTypeError if not a string)."""
     if isinstance(mode, AutoresetMode) and mode in AUTORESET_MODES:
         return mode
+    hint = ("use AutoresetMode.SAME_STEP (the default) or AutoresetMode.NEXT_STEP, or their "
+            "names: 'same_step', 'next_step'")
+    if not isinstance(mode, (str, AutoresetMode)):
+        raise LabTypeError(f"autoreset_mode must be an AutoresetMode or a string, got "
+                           f"{_shown(mode)} ({type(mode).__name__})", hint)
     key = str(getattr(mode, "value", mode)).replace("_", "").lower()
     for known in AUTORESET_MODES:
         if known.value.lower() == key:
             return known
-    raise LabError(f"autoreset_mode {mode!r} is not one lab's env has",
-                   "use 'same_step' (the default) or 'next_step'")
+    raise LabValueError(f"autoreset_mode {mode!r} is not one lab's env has", hint)

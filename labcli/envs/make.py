@@ -7,7 +7,7 @@ from typing import Any
 
 from labcli.envs.gym_spec import BACKEND, GymTaskSpec
 from labcli.envs.spec import TaskSpec
-from labcli.errors import LabError
+from labcli.errors import LabError, LabValueError
 
 
 def make_env(spec: TaskSpec | GymTaskSpec, cfg: Any, *, backend: str | None = None,
@@ -17,8 +17,8 @@ def make_env(spec: TaskSpec | GymTaskSpec, cfg: Any, *, backend: str | None = No
     if isinstance(spec, GymTaskSpec):
         if str(getattr(autoreset_mode, "value", autoreset_mode)).replace("_", "").lower() \
                 != "samestep":
-            raise LabError(f"gymnasium tasks reset in the same step, not as {autoreset_mode!r}",
-                           "leave autoreset_mode out for gym: tasks")
+            raise LabValueError(f"gymnasium tasks reset in the same step, not as "
+                                f"{autoreset_mode!r}", "leave autoreset_mode out for gym: tasks")
         # gymnasium's MuJoCo envs step MuJoCo's C engine: "cpu" is what they are, "warp" not.
         if backend not in (None, "cpu", BACKEND):
             raise LabError(f"gymnasium tasks step in gymnasium on the CPU, not on the "
