@@ -20,10 +20,11 @@ import torch
 import torch.multiprocessing as mp
 from rich.console import Console
 
+from labcli.envs.cores import cores
 from labcli.errors import LabError
 from labcli.plugins import registry
 from labcli.plugins.policy import read_torch_file
-from labcli.runs import rundir, snapshot
+from labcli.runs import launcher, rundir, snapshot
 from labcli.runs.launcher import Launch, rank_argv
 from labcli.runs.ranks import SINGLE, Ranks, from_environment
 
@@ -57,10 +58,41 @@ def test_the_ranks_run_the_command_without_the_launchers_options():
             "--rdzv-endpoint=h:1", "--num-envs", "8"]
     assert rank_argv(argv) == ["train", "--task", "cartpole", "--num-envs", "8"]
     assert Launch(2).check() == 2
-    assert Launch(2, "1:3", "host:29400", "run").check() == 6
-    for bad in (Launch(0), Launch(2, "2"), Launch(2, "x"), Launch(2, "3:1", "h:1", "id")):
+    assert Launch(2, "1:3", "localhost:29400", "run").check() == 6
+    assert Launch(2, "1", "127.0.0.1:29400").check() == 2  # one host, its own endpoint
+    for bad in (Launch(0), Launch(2, "2"), Launch(2, "x"), Launch(2, "3:1", "h:1", "id"),
+                Launch(2, "1", "x"), Launch(2, "1", "localhost:99999"), Launch(2, "1", ":29400"),
+                Launch(2, "1", "localhost:"), Launch(2, "2", "no-such-host.invalid:29400", "id"),
+                Launch(1, "1", None, "id")):  # --rdzv-id without several hosts
         with pytest.raises(LabError):
             bad.check()
+
+
+def test_more_ranks_than_cores_is_one_line(tmp_path):
+    result = subprocess.run(
+        [sys.executable, "-m", "labcli", "train", "--task", "cartpole", "--framework", "rsl_rl",
+         "--backend", "cpu", "--nproc", str(cores() + 1)], capture_output=True, text=True,
+        env={**os.environ, "LAB_LOGS_DIR": str(tmp_path)})
+    assert result.returncode == 2
+    assert result.stderr.strip().splitlines()[-1].startswith(
+        f"error: --nproc {cores() + 1} on a host with {cores()} core(s)"), result.stderr
+    assert not any(tmp_path.iterdir())
+
+
+def test_a_rendezvous_that_never_answers_gives_up_in_one_line(monkeypatch):
+    """A port another program holds, which accepts and never answers: torchrun's own client
+    waits there forever."""
+    monkeypatch.setattr(launcher, "STORE_TIMEOUT_S", 2)
+    monkeypatch.setattr(launcher, "ANSWER_TIMEOUT_S", 1)
+    with socket.socket() as silent:
+        silent.bind(("127.0.0.1", 0))
+        silent.listen()
+        endpoint = f"127.0.0.1:{silent.getsockname()[1]}"
+        start = time.monotonic()
+        with pytest.raises(LabError, match=f"no rendezvous store answered at {endpoint} "
+                                           "within 3 s"):
+            launcher.launch(Launch(2, "2", endpoint, "run"), ["train"], Console())
+        assert time.monotonic() - start < 20
 
 
 def test_a_framework_without_data_parallel_training_is_one_line(tmp_path):

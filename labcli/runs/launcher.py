@@ -8,20 +8,29 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+import socket
 import sys
+import threading
 import uuid
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 from rich.console import Console
 
-from labcli.errors import LabError
+from labcli.errors import LabError, first_line
 
 # The options that only the launcher reads: the ranks run the command without them.
 LAUNCH_OPTIONS = ("--nproc", "--nnodes", "--rdzv-endpoint", "--rdzv-id")
 # A stop must reach every rank's checkpoint: the agent waits this long after passing a signal
 # on before it kills the ranks.
 SHUTDOWN_TIMEOUT_S = 300
+# The c10d rendezvous, under a name of lab's (`_register_rendezvous`).
+RENDEZVOUS = "lab-c10d"
+# How long a host tries to reach the rendezvous's store (another host may not have started it
+# yet), and how long more it waits for the store to answer once connected.
+STORE_TIMEOUT_S = 60
+ANSWER_TIMEOUT_S = 15
 
 
 @dataclass(frozen=True)
@@ -50,7 +59,27 @@ class Launch:
         if high > 1 and not (self.rdzv_endpoint and self.rdzv_id):
             raise LabError(f"--nnodes {self.nnodes} without --rdzv-endpoint and --rdzv-id",
                            "give every host the same --rdzv-endpoint HOST:PORT and --rdzv-id")
+        if self.rdzv_id is not None and high == 1:
+            raise LabError("--rdzv-id names a run of several hosts, and this one has one",
+                           "leave it out, or add --nnodes N --rdzv-endpoint HOST:PORT")
+        if self.rdzv_endpoint is not None:
+            self.endpoint()
         return self.nproc * high
+
+    def endpoint(self) -> tuple[str, int]:
+        """--rdzv-endpoint as a host this machine can resolve and a port."""
+        host, _, port = (self.rdzv_endpoint or "").rpartition(":")
+        host = host.removeprefix("[").removesuffix("]")  # an IPv6 address, [::1]:29400
+        if not host or not port.isdigit() or not 0 < int(port) < 65536:
+            raise LabError(f"--rdzv-endpoint '{self.rdzv_endpoint}' is not HOST:PORT",
+                           "e.g. --rdzv-endpoint node0:29400 (a port from 1 to 65535)")
+        try:
+            socket.getaddrinfo(host, int(port), type=socket.SOCK_STREAM)
+        except (OSError, UnicodeError) as exc:
+            raise LabError(f"--rdzv-endpoint '{self.rdzv_endpoint}': host '{host}' cannot be "
+                           f"resolved ({exc})", "pass the rendezvous host's name or address"
+                           ) from None
+        return host, int(port)
 
 
 def rank_argv(argv: Sequence[str]) -> list[str]:
@@ -71,6 +100,7 @@ def launch(launch: Launch, argv: Sequence[str], console: Console) -> int:
     the rank that failed first, or 128 + the signal that stopped the launcher."""
     from torch.distributed.elastic.multiprocessing.api import SignalException
     from torch.distributed.elastic.multiprocessing.errors import ChildFailedError
+    from torch.distributed.elastic.rendezvous.api import RendezvousError
     from torch.distributed.launcher.api import LaunchConfig, elastic_launch
 
     low, high = launch.nodes()
@@ -78,16 +108,21 @@ def launch(launch: Launch, argv: Sequence[str], console: Console) -> int:
     # torch < 2.13 has no such setting: its agent waits 30 s.
     later = ({"shutdown_timeout": SHUTDOWN_TIMEOUT_S}
              if "shutdown_timeout" in {f.name for f in dataclasses.fields(LaunchConfig)} else {})
+    _register_rendezvous()
     config = LaunchConfig(
         min_nodes=low, max_nodes=high, nproc_per_node=launch.nproc,
-        run_id=launch.rdzv_id or uuid.uuid4().hex, rdzv_backend="c10d",
+        run_id=launch.rdzv_id or uuid.uuid4().hex, rdzv_backend=RENDEZVOUS,
         # torchrun's --standalone: a rendezvous on a free local port.
         rdzv_endpoint="localhost:0" if one_host else launch.rdzv_endpoint or "",
-        max_restarts=0, **later)
+        rdzv_configs={"read_timeout": STORE_TIMEOUT_S}, max_restarts=0, **later)
     # The agent logs every worker it starts and stops; a failure is said below in one line.
     logging.getLogger("torch.distributed.elastic").setLevel(logging.CRITICAL)
     try:
         elastic_launch(config, sys.executable)("-m", "labcli", *rank_argv(argv))
+    except RendezvousError as exc:
+        raise LabError(f"--rdzv-endpoint {launch.rdzv_endpoint}: {first_line(exc)}",
+                       "start lab train with the same --rdzv-endpoint on the host that has "
+                       "it, and open its port to the others") from None
     except ChildFailedError as exc:
         rank, failure = exc.get_first_failure()
         if failure.exitcode > 0:  # it said why itself, in its own line
@@ -100,3 +135,39 @@ def launch(launch: Launch, argv: Sequence[str], console: Console) -> int:
         return 128 + int(exc.sigval)
     return 0
 
+
+
+def _rendezvous_handler(params: Any) -> Any:
+    """torchrun's c10d rendezvous, whose store is reached within a stated time: its own client
+    waits forever on a listener that accepts and never answers (a port another program holds),
+    and is given STORE_TIMEOUT_S + ANSWER_TIMEOUT_S here, in a thread of its own."""
+    from torch.distributed.elastic.rendezvous.api import RendezvousConnectionError
+    from torch.distributed.elastic.rendezvous.c10d_rendezvous_backend import create_backend
+    from torch.distributed.elastic.rendezvous.dynamic_rendezvous import create_handler
+
+    made: list[Any] = []
+    failed: list[BaseException] = []
+
+    def connect() -> None:
+        try:
+            made.extend(create_backend(params))
+        except BaseException as exc:  # re-raised in the caller's thread
+            failed.append(exc)
+
+    thread = threading.Thread(target=connect, name="lab-rendezvous", daemon=True)
+    thread.start()
+    thread.join(STORE_TIMEOUT_S + ANSWER_TIMEOUT_S)
+    if failed:
+        raise failed[0]
+    if not made:
+        raise RendezvousConnectionError(f"no rendezvous store answered at {params.endpoint} "
+                                        f"within {STORE_TIMEOUT_S + ANSWER_TIMEOUT_S} s")
+    backend, store = made
+    params.backend = backend.name  # c10d's rendezvous, which checks that it was asked for
+    return create_handler(store, backend, params)
+
+
+def _register_rendezvous() -> None:
+    from torch.distributed.elastic.rendezvous.api import rendezvous_handler_registry
+
+    rendezvous_handler_registry.register(RENDEZVOUS, _rendezvous_handler)

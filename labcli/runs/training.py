@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING, Any
 
 from rich.console import Console
 
+from labcli.envs.cores import cores
 from labcli.errors import LabError
 from labcli.plugins import registry
 from labcli.runs import interrupt, rundir
@@ -79,5 +80,8 @@ def launch(launch: Launch, argv: Sequence[str], task: str, framework: str, *,
     if device.startswith("cuda") and launch.nproc > gpus:
         raise LabError(f"--nproc {launch.nproc} on a host with {gpus} GPU(s): each rank takes "
                        "one", f"pass --nproc {gpus}, or --backend cpu for ranks on the CPU")
+    if not device.startswith("cuda") and launch.nproc > cores():
+        raise LabError(f"--nproc {launch.nproc} on a host with {cores()} core(s) for lab: each "
+                       "rank steps its envs on at least one", f"pass at most --nproc {cores()}")
 
     return run_ranks(launch, argv, console)
