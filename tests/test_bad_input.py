@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import dataclasses
 import os
+import re
 import shutil
 import subprocess
 from pathlib import Path
@@ -244,3 +245,43 @@ def test_any_set_and_num_envs_work_or_are_one_lab_error(items, num_envs, mujoco_
             assert torch.isfinite(obs).all() and torch.isfinite(reward).all()
     finally:
         env.close()
+
+
+# A robot task's terms, and envs that cannot fit ------------------------------------------------
+@pytest.mark.parametrize(("setting", "says"), [
+    ("env.rewards.lin_vel_z_l2.weight=true", "'env.rewards.lin_vel_z_l2.weight': a boolean"),
+    ("env.commands.base_velocity.lin_vel_x=[true, 1]", "a boolean where a number is expected"),
+    ("env.rewards.lin_vel_z_l2={}", "--set env.rewards.lin_vel_z_l2={} sets nothing"),
+    ("env.nconmax=-1", "nconmax is -1: it must be above 0"),
+    ("env.njmax=70000", "njmax is 70000: it must be at most 65536"),
+    ("env.terminations.base_contact.bodies=[]", "'env.terminations.base_contact.bodies'"),
+])
+def test_a_robot_term_setting_that_cannot_work_is_one_line(setting, says):
+    spec, fw = registry.get_task("go1-flat"), registry.get_framework("rsl_rl")
+    with pytest.raises(LabError, match=re.escape(says)) as caught:
+        config.resolve(spec, fw, overrides=[setting])
+    assert "\n" not in str(caught.value)
+
+
+def test_a_robot_task_with_every_reward_left_out_is_one_line():
+    spec, fw = registry.get_task("go1-flat"), registry.get_framework("rsl_rl")
+    rewards = spec.config_class().rewards.terms()
+    with pytest.raises(LabError, match="every reward term is left out"):
+        config.resolve(spec, fw, overrides=[f"env.rewards.{name}=null" for name, _ in rewards])
+    # One left, even at weight 0, is a task.
+    config.resolve(spec, fw, overrides=[f"env.rewards.{name}=null" for name, _ in rewards[1:]])
+
+
+def test_envs_whose_physics_cannot_fit_are_one_line(monkeypatch):
+    """go1-flat's envs each hold a copy of the model (their masses and centres of mass vary):
+    a million of them asked MuJoCo for ~800 GiB, which failed deep in an allocation."""
+    from labcli.envs.shards import ShardedVecEnv
+    from labcli.envs.sim import cpu
+
+    monkeypatch.setattr(cpu, "available_memory", lambda: 2**30)
+    spec = registry.get_task("go1-flat")
+    for make in (LabVecEnv, ShardedVecEnv):
+        with pytest.raises(LabError, match=r"env.num_envs=4,096 needs about 3\.\d GiB for the "
+                           r"cpu backend's physics .* more than the 1\.0 GiB free \(use at most "
+                           r"1,2\d\d envs\)"):
+            make(spec, spec.config_class(num_envs=4096))

@@ -6,7 +6,8 @@ from __future__ import annotations
 
 from typing import Any, ClassVar, Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+import annotated_types
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 
 class TaskConfig(BaseModel):
@@ -43,9 +44,30 @@ class TaskConfig(BaseModel):
                           "its torch code (TorchInductor; needs a C++ compiler; the first step "
                           "compiles, seconds to minutes, then cached): faster on many cores")
 
+    @model_validator(mode="after")
+    def _within_bounds(self) -> TaskConfig:
+        """These settings' bounds hold in a task that declares one again with a default of its
+        own (`nconmax: int | None = 16`), which replaces the field and its bounds."""
+        for name, field in TaskConfig.model_fields.items():
+            value = getattr(self, name)
+            if not isinstance(value, int | float) or isinstance(value, bool):
+                continue
+            for bound in field.metadata:
+                for kind, holds in _BOUNDS.items():
+                    limit = getattr(bound, kind, None)
+                    if isinstance(bound, annotated_types.BaseMetadata) and limit is not None \
+                            and not holds(value, limit):
+                        raise ValueError(f"{name} is {value}: it must be {_SAYS[kind]} {limit}")
+        return self
+
     def weights(self, step_dt: float) -> dict[str, float]:
         """Each reward term's weight per env step of `step_dt` s, by name."""
         return dict(self.reward_weights)
+
+
+_BOUNDS = {"gt": lambda v, b: v > b, "ge": lambda v, b: v >= b, "lt": lambda v, b: v < b,
+           "le": lambda v, b: v <= b}
+_SAYS = {"gt": "above", "ge": "at least", "lt": "below", "le": "at most"}
 
 
 class GymConfig(BaseModel):

@@ -42,6 +42,7 @@ from labcli.envs.env import (
 from labcli.envs.random import BLOCKS, EnvRandom, block_bounds
 from labcli.envs.sharedmem import shared
 from labcli.envs.sim.chunks import ChunkBoard, ShardPhysics
+from labcli.envs.sim.cpu import check_fits
 from labcli.envs.spec import TaskSpec
 from labcli.errors import LabError, first_line
 
@@ -318,9 +319,11 @@ class ShardedVecEnv(gym.vector.VectorEnv):
         ctx = mp.get_context("spawn")
         self._workers: list[_Worker] = []
         self._stop_workers = weakref.finalize(self, _stop, self._workers)
-        board = ChunkBoard(ctx, spec.task_class.build_model(cfg, spec.model),
-                           [(shard.first, shard.stop) for shard in self._shards],
-                           cfg.decimation, spec.task_class.per_env_fields(cfg))
+        model, per_env_fields = (spec.task_class.build_model(cfg, spec.model),
+                                 spec.task_class.per_env_fields(cfg))
+        check_fits(model, n, per_env_fields)
+        board = ChunkBoard(ctx, model, [(shard.first, shard.stop) for shard in self._shards],
+                           cfg.decimation, per_env_fields)
         workers = self._workers
         # Shard 0 first, here: a config the task refuses fails before any process starts.
         self._local = LabVecEnv(

@@ -40,6 +40,10 @@ def parse_set(items: Iterable[str]) -> dict[str, dict[str, Any]]:
             raise LabError(f"--set {key}: the value {exc}") from None
         except Exception:  # not YAML (PyYAML raises more than YAMLError, e.g. ValueError for
             value = raw  # 2020-13-45): the string as written
+        if value == {}:  # merged into what is there, it would change nothing
+            raise LabError(f"--set {key}={{}} sets nothing: a mapping's keys are set one by one",
+                           f"set a key below it (--set {key}.KEY=VALUE), or {key}=null to "
+                           "leave a term out")
         _set_path(out[section], section, path.split("."), value)
     return out
 
@@ -111,16 +115,17 @@ def _reject_bools_as_numbers(model: type[BaseModel], data: Mapping[str, Any], se
     booleans where only numbers go."""
     for key, value in data.items():
         field = model.model_fields.get(key)
-        path = _bool_in_number(field.annotation, value, [key]) if field else None
-        if path is not None:
-            annotation = _annotation_at(field.annotation, len(path) - 1)
+        found = _bool_in_number(field.annotation, value, [key]) if field else None
+        if found is not None:
+            path, annotation = found
             raise LabError(f"bad value for '{'.'.join([section, *map(str, path)])}': a boolean "
                            f"where a number is expected (got {_value_at(value, path[1:])!r})",
                            f"expected {_type_name(annotation)}")
 
 
-def _bool_in_number(annotation: Any, value: Any, path: list) -> list | None:
-    """The path to a bool inside `value` where `annotation` takes only numbers, or None."""
+def _bool_in_number(annotation: Any, value: Any, path: list) -> tuple[list, Any] | None:
+    """The path to a bool inside `value` where `annotation` takes only numbers, and that
+    number's type; None if there is none. Goes into nested models (a robot task's terms)."""
     origin, args = typing.get_origin(annotation), typing.get_args(annotation)
     if origin is typing.Annotated:
         return _bool_in_number(args[0], value, path)
@@ -128,7 +133,14 @@ def _bool_in_number(annotation: Any, value: Any, path: list) -> list | None:
         numeric = [a for a in args if a is not type(None)]
         return _bool_in_number(numeric[0], value, path) if len(numeric) == 1 else None
     if isinstance(value, bool):
-        return path if _numbers_only(annotation) else None
+        return (path, annotation) if _numbers_only(annotation) else None
+    if isinstance(value, Mapping) and isinstance(annotation, type) \
+            and issubclass(annotation, BaseModel):
+        for key, item in value.items():
+            field = annotation.model_fields.get(key)
+            found = _bool_in_number(field.annotation, item, [*path, key]) if field else None
+            if found:
+                return found
     if isinstance(value, (list, tuple)) and origin in (list, tuple, set, frozenset) and args:
         for i, item in enumerate(value):
             item_type = args[0] if origin is not tuple or args[-1] is Ellipsis else \

@@ -23,7 +23,7 @@ from torch.utils.tensorboard import SummaryWriter
 from labcli import __version__, files
 from labcli.envs import metrics, mjwarnings, wrappers
 from labcli.envs.config import TaskConfig
-from labcli.envs.cores import cores
+from labcli.envs.cores import available_memory, cores, gib
 from labcli.envs.make import make_env
 from labcli.envs.sim import WARP_INSTALL_HINT, default_backend
 from labcli.errors import LabError
@@ -208,9 +208,9 @@ def _check_memory(cfg: AgentConfig, env: Any, device: str) -> None:
         return
     key, largest = max(needs.items(), key=lambda item: item[1])
     value = getattr(cfg, key.removeprefix("agent."), None)
-    in_all = f" ({_gib(total)} for the learner in all)" if total > largest * 1.01 else ""
-    raise LabError(f"{key}={value!r} with {env.num_envs} envs needs {_gib(largest)} of "
-                   f"memory{in_all}, more than the {_gib(free)} free on {device}",
+    in_all = f" ({gib(total)} for the learner in all)" if total > largest * 1.01 else ""
+    raise LabError(f"{key}={value!r} with {env.num_envs} envs needs {gib(largest)} of "
+                   f"memory{in_all}, more than the {gib(free)} free on {device}",
                    f"lower {key}, or the env count")
 
 
@@ -218,17 +218,7 @@ def _free_memory(device: str) -> int | None:
     """Bytes free on `device`: CUDA's count, or Linux's MemAvailable; None where unknown."""
     if torch.device(device).type == "cuda":
         return torch.cuda.mem_get_info(torch.device(device))[0]
-    try:
-        for line in Path("/proc/meminfo").read_text().splitlines():
-            if line.startswith("MemAvailable:"):
-                return int(line.split()[1]) * 1024
-    except (OSError, ValueError, IndexError):
-        pass
-    return None
-
-
-def _gib(size: int) -> str:
-    return f"{size / 2**30:,.1f} GiB" if size >= 2**30 else f"{size / 2**20:,.1f} MiB"
+    return available_memory()
 
 
 def _previous(run: rundir.Run | None) -> dict[str, Any]:

@@ -10,13 +10,15 @@ env.rewards.energy=null`) leaves that term out.
 from __future__ import annotations
 
 import math
-from typing import Any, ClassVar, Literal
+from typing import Annotated, Any, ClassVar, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from labcli.envs.config import TaskConfig
 
 Range = tuple[float, float]
+# Body names or patterns (regular expressions matched whole): at least one.
+Bodies = Annotated[list[str], Field(min_length=1)]
 
 
 class Term(BaseModel):
@@ -162,7 +164,7 @@ class BodyWrench(ObsTerm):
     sensors that the task adds to the model."""
 
     impl: ClassVar[str] = "labcli.envs.mdp.observations:body_incoming_wrench"
-    bodies: list[str]
+    bodies: Bodies
 
 
 class ContactForces(ObsTerm):
@@ -170,7 +172,7 @@ class ContactForces(ObsTerm):
     that the task adds to the model."""
 
     impl: ClassVar[str] = "labcli.envs.mdp.observations:contact_forces"
-    bodies: list[str]
+    bodies: Bodies
 
 
 # rewards ---------------------------------------------------------------------------------------
@@ -276,7 +278,7 @@ class Contacts(Term):
     where the net force of its contacts exceeds `threshold` (N), read from MuJoCo contact
     sensors that the task adds to the model."""
 
-    bodies: list[str]
+    bodies: Bodies
     threshold: float = Field(1.0, ge=0)
 
 
@@ -379,7 +381,7 @@ class ModelEvent(EventTerm):
     model fields on warp), drawn once at start-up or again at every reset of the env."""
 
     mode: Literal["startup", "reset"] = "startup"
-    bodies: list[str] = Field(default_factory=lambda: [".*"],
+    bodies: Bodies = Field(default_factory=lambda: [".*"],
                               description="bodies whose geoms or mass it changes (patterns)")
 
 
@@ -496,6 +498,9 @@ class RobotTaskConfig(TaskConfig):
         if self.reward_weights:
             raise ValueError("a robot task's reward weights are env.rewards.<term>.weight, "
                              "not env.reward_weights")
+        if type(self).model_fields["rewards"].default.terms() and not self.rewards.terms():
+            raise ValueError("every reward term is left out (null): keep at least one, or "
+                             "give one a weight of 0")
         return self
 
     def weights(self, step_dt: float) -> dict[str, float]:

@@ -16,9 +16,10 @@ import numpy as np
 import torch
 from mujoco import rollout
 
-from labcli.envs.cores import cores
+from labcli.envs.cores import available_memory, cores, gib
 from labcli.envs.sim import UNSTABLE_VELOCITY, Sim
 from labcli.envs.sim.chunks import ChunkStepper, ShardPhysics
+from labcli.errors import LabError
 
 FULL = mujoco.mjtState.mjSTATE_FULLPHYSICS
 
@@ -31,6 +32,23 @@ def _state_slice(model: mujoco.MjModel, part: mujoco.mjtState) -> slice:
         if bit < part.value and bit & FULL.value
     )
     return slice(start, start + mujoco.mj_stateSize(model, part))
+
+
+def check_fits(model: mujoco.MjModel, num_envs: int, per_env_fields: Sequence[str]) -> None:
+    """Refuse envs whose physics cannot fit in the memory the host has left, in one line:
+    MuJoCo would fail deep in an allocation, or the OS would kill the process. The state arrays
+    hold a few vectors an env; where model fields vary per env, each env has a copy of the
+    model (rollout takes a model an env), which dominates."""
+    vectors = mujoco.mj_stateSize(model, FULL) + model.nu + model.nsensordata
+    per_env = 3 * 8 * vectors + (model.nbuffer if per_env_fields else 0)
+    free = available_memory()
+    if free is None or num_envs * per_env <= free:
+        return
+    why = (f", a copy of the model each, for per-env {', '.join(per_env_fields)}"
+           if per_env_fields else "")
+    raise LabError(f"env.num_envs={num_envs:,} needs about {gib(num_envs * per_env)} for the "
+                   f"cpu backend's physics ({gib(per_env)} an env{why}), more than the "
+                   f"{gib(free)} free", f"use at most {free // per_env:,} envs")
 
 
 class _Worker:
@@ -105,6 +123,8 @@ class CpuSim(Sim):
         # MuJoCo's own reset of a diverged state would hide it from `Sim.unstable()`: lab resets
         # such envs itself, and counts them. On a copy: the caller's model may also go to MuJoCo
         # Warp, which has no such reset and refuses the flag.
+        if shard is None:  # a sharded env checked all its shards' envs
+            check_fits(model, num_envs, per_env_fields)
         model = copy.copy(model)
         model.opt.disableflags |= mujoco.mjtDisableBit.mjDSBL_AUTORESET
         self.model = model
