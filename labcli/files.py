@@ -193,6 +193,14 @@ def remove(path: Path) -> None:
         shutil.rmtree(path, ignore_errors=True)
 
 
+def is_regular(path: Path) -> bool:
+    """Whether `path` is a regular file (links followed), without opening it."""
+    try:
+        return stat.S_ISREG(path.stat().st_mode)
+    except OSError:
+        return False
+
+
 class Unreadable(Exception):
     """A file lab will not read: not a regular file, too large, not valid text or data. The
     message is a predicate ("is not a regular file"), for the line `f"{path} {exc}"`."""

@@ -97,6 +97,22 @@ def test_plot_any_logged_tag_and_name_the_tags_of_an_unknown_one(logs, tmp_path)
     assert not (tmp_path / "nope.png").exists()
 
 
+@pytest.mark.parametrize("kind", ["directory", "fifo"])
+def test_plot_refuses_events_that_are_not_regular_files(logs, tmp_path, kind):
+    """TensorBoard's reader failed inside on a directory and would block on a FIFO."""
+    source = plot.select(logs_dir=logs, task="cartpole")[0].dir
+    run = tmp_path / "run"
+    (run / "params").mkdir(parents=True)
+    for name in (rundir.MANIFEST, rundir.SUMMARY, "params/env.yaml", "params/agent.yaml"):
+        if (source / name).exists():
+            (run / name).write_bytes((source / name).read_bytes())
+    odd = run / "events.out.tfevents.1.odd"
+    odd.mkdir() if kind == "directory" else os.mkfifo(odd)
+    with pytest.raises(LabError, match="events.out.tfevents.1.odd is not a regular file"):
+        plot.plot(plot.select([run]), output=tmp_path / "curves.png")
+    assert not (tmp_path / "curves.png").exists()
+
+
 def test_plot_needs_runs_and_a_png_name(tmp_path):
     with pytest.raises(LabError, match="no runs found"):
         plot.select(logs_dir=tmp_path)

@@ -20,6 +20,11 @@ def read_scalars(run_dir: Path) -> dict[str, list[tuple[int, float]]]:
 
     out: dict[str, list[tuple[int, float]]] = {}
     for path in sorted(run_dir.glob("events.out.tfevents.*")):
+        # TensorBoard's reader opens whatever the name is: a directory fails inside it, a FIFO
+        # would block it.
+        if not files.is_regular(path):
+            raise LabError(f"{path} is not a regular file: lab reads a run's TensorBoard "
+                           "events from regular files", "remove it, or plot another run")
         acc = EventAccumulator(str(path), size_guidance={"scalars": 0})
         acc.Reload()
         for tag in acc.Tags()["scalars"]:
