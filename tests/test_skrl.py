@@ -18,6 +18,7 @@ from lab_skrl.config import SkrlPPOConfig
 from lab_skrl.framework import META, SkrlFramework, _collect_and_update, make_agent
 from lab_skrl.plugin import SPEC
 from rich.console import Console
+from runfiles import remanifest, snapshot_of
 from skrl.resources.preprocessors.torch import RunningStandardScaler
 
 from labcli import testing
@@ -182,6 +183,20 @@ def test_resume_continues_iterations_optimizer_and_normalizer(tmp_path):
     assert int(before["optimizer"]["state"][0]["step"]) == 2 * updates_per_iteration
     count = "current_count"
     assert after["observation_preprocessor"][count] > before["observation_preprocessor"][count]
+
+
+@pytest.mark.parametrize("steps", ["x", -1, 1.5, True])
+def test_a_checkpoint_whose_steps_are_not_a_count_is_refused_before_anything_is_written(
+        tmp_path, steps):
+    run = train(tmp_path, 2).run.dir
+    saved = torch.load(run / "model_2.pt", weights_only=True)
+    saved[META]["steps"] = steps
+    torch.save(saved, run / "model_2.pt")
+    remanifest(run, 2)  # as a hand edit would leave it: a whole checkpoint
+    before = snapshot_of(tmp_path)
+    with pytest.raises(LabError, match=f"model_2.pt records {steps!r} env steps, not a count"):
+        train(tmp_path, 4, checkpoint=checkpoints.LATEST)
+    assert snapshot_of(tmp_path) == before
 
 
 def test_stop_mid_rollout_leaves_a_loadable_checkpoint(tmp_path, monkeypatch):

@@ -237,6 +237,10 @@ def read_checkpoint(path: Path) -> dict[str, Any]:
     if not isinstance(meta, dict) or not set(meta) >= META_KEYS or "policy" not in saved:
         raise LabError(f"checkpoint {path} is not a lab skrl checkpoint",
                        "pick a model_<iteration>.pt written by lab's skrl plugin")
+    steps = meta["steps"]
+    if isinstance(steps, bool) or not isinstance(steps, int) or steps < 0:
+        raise LabError(f"checkpoint {path.name} records {steps!r} env steps, not a count",
+                       "the checkpoint is damaged; pick another")
     return saved
 
 
