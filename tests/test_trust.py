@@ -278,3 +278,96 @@ def test_bench_refuses_counts_and_seconds_that_cannot_work(tmp_path):
                               logs=tmp_path), "env.num_envs")
     assert_one_line_error(lab("bench", "--task", "cartpole", "--seconds", "-1", logs=tmp_path),
                           "--seconds")
+
+
+# Files a run's params name -----------------------------------------------------------------------
+GYM = "gym:InvertedPendulum-v5"
+GYM_SMALL = ["--num-envs", "2", "--set", "agent.n_steps=8", "--set", "agent.batch_size=16",
+             "--set", "agent.n_epochs=1"]
+
+
+def train_gym(logs: Path, *extra: str) -> Path:
+    result = lab("train", "--task", GYM, "--framework", "sb3", "--max-iterations", "1",
+                 *GYM_SMALL, *extra, logs=logs)
+    assert result.exit_code == 0, result.output
+    (run_dir,) = logs.glob("sb3/*/*")
+    return run_dir
+
+
+@pytest.fixture(scope="module")
+def gym_run(tmp_path_factory) -> Path:
+    return train_gym(tmp_path_factory.mktemp("gym_logs"))
+
+
+@pytest.fixture
+def opened(monkeypatch) -> list[str]:
+    """The model files gymnasium's MuJoCo envs are asked to open."""
+    from gymnasium.envs.mujoco import mujoco_env
+
+    paths: list[str] = []
+    expand = mujoco_env.expand_model_path
+    monkeypatch.setattr(mujoco_env, "expand_model_path",
+                        lambda path: paths.append(path) or expand(path))
+    return paths
+
+
+def with_env_kwargs(run_dir: Path, kwargs: dict) -> None:
+    params = run_dir / "params" / "env.yaml"
+    params.write_text(params.read_text().replace("kwargs: {}", f"kwargs: {json.dumps(kwargs)}"))
+
+
+@pytest.mark.parametrize("planted", ["/etc/passwd", "/dev/zero", "MJCF", "./model.xml",
+                                     "~/.ssh/id_rsa", ["/etc/passwd"]])
+def test_a_run_whose_env_kwargs_name_a_file_is_refused_before_it_is_opened(planted, gym_run,
+                                                                         opened, tmp_path):
+    run_dir = Path(shutil.copytree(gym_run, tmp_path / "logs" / "sb3" / GYM / "run"))
+    if planted == "MJCF":  # inside the run dir, including a system file
+        (run_dir / "model.xml").write_text('<mujoco><include file="/etc/passwd"/></mujoco>')
+        planted = str(run_dir / "model.xml")
+    with_env_kwargs(run_dir, {"xml_file": planted})
+    before = sorted(p.name for p in run_dir.iterdir())
+    for args in (["play", "--run", str(run_dir), "--episodes", "1"],
+                 ["export", "onnx", "--run", str(run_dir)],
+                 ["train", "--task", GYM, "--framework", "sb3", "--checkpoint", str(run_dir),
+                  "--max-iterations", "2"]):
+        assert_one_line_error(lab(*args, logs=tmp_path / "logs"), "params/env.yaml",
+                              "env.kwargs.xml_file", "names the file",
+                              "lab opens no file that a run dir names",
+                              "if you trust it, pass it yourself: --set")
+    assert opened == []
+    assert sorted(p.name for p in run_dir.iterdir()) == before
+
+
+def test_a_file_the_user_names_this_time_is_used(tmp_path, opened):
+    from gymnasium.envs.mujoco import mujoco_env
+
+    model = tmp_path / "pendulum.xml"
+    shutil.copy(Path(mujoco_env.__file__).parent / "assets" / "inverted_pendulum.xml", model)
+    logs = tmp_path / "logs"
+    run_dir = train_gym(logs, "--set", f"env.kwargs.xml_file={model}")
+    assert set(opened) == {str(model)}
+    count = len(opened)
+    mine = ["--set", f"env.kwargs.xml_file={model}"]
+    # The run's own params name it: played, exported or resumed only when named again.
+    play = ["play", "--run", str(run_dir), "--episodes", "1"]
+    resume = ["train", "--task", GYM, "--framework", "sb3", "--checkpoint", "latest",
+              "--max-iterations", "2"]
+    for args in (play, resume):
+        assert_one_line_error(lab(*args, logs=logs), f"env.kwargs.xml_file names the file "
+                              f"'{model}'", f"--set env.kwargs.xml_file={model}")
+    assert len(opened) == count
+    for args in (play, resume):
+        result = lab(*args, *mine, logs=logs)
+        assert result.exit_code == 0, result.output
+        assert len(opened) > count and set(opened) == {str(model)}
+        count = len(opened)
+    from labcli.runs.export import export
+    assert export("onnx", run_dir=run_dir, overrides=mine[1:]).path.exists()
+    # A play still sets nothing else of the run's settings.
+    assert_one_line_error(lab(*play, "--set", "env.kwargs.frame_skip=3", logs=logs),
+                          "--set env.kwargs.frame_skip cannot change a run",
+                          "may set: env.kwargs.xml_file")
+    # A file of the user's that is no model is one line too.
+    assert_one_line_error(lab("train", "--task", GYM, "--framework", "sb3", *GYM_SMALL, "--set",
+                              "env.kwargs.xml_file=/etc/passwd", logs=tmp_path / "other"),
+                          "gymnasium could not make 'InvertedPendulum-v5'")

@@ -86,7 +86,8 @@ class GymVecEnv(gym.vector.VectorEnv):
         vector = gym.vector.SyncVectorEnv if sync else gym.vector.AsyncVectorEnv
         try:
             return vector(fns, autoreset_mode=AutoresetMode.SAME_STEP)
-        except (TypeError, gym.error.Error) as exc:
+        # A keyword the env does not take, a model file it cannot read (not MJCF, missing).
+        except (TypeError, ValueError, OSError, gym.error.Error) as exc:
             raise LabError(f"gymnasium could not make '{spec.gym_id}': {first_line(exc)}",
                            "check --set env.kwargs.* against the env's constructor") from None
 

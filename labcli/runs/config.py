@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import copy
 import difflib
+import os
+import re
+import shlex
 import types
 import typing
 from collections.abc import Iterable, Mapping, Sequence
@@ -16,7 +19,7 @@ from pydantic import BaseModel, ValidationError
 from labcli import files
 from labcli.envs.config import TaskConfig
 from labcli.envs.spec import TaskSpec
-from labcli.errors import LabError
+from labcli.errors import LabError, one_line
 from labcli.plugins.config import AgentConfig
 from labcli.plugins.framework import FrameworkSpec
 
@@ -98,14 +101,75 @@ def build(model: type[BaseModel], section: str, layers: Iterable[Mapping[str, An
         raise _explain(exc, model, section) from None
 
 
-def check_saved(model: type[BaseModel], section: str, path: Path, data: Mapping[str, Any]
-                ) -> None:
+def check_saved(model: type[BaseModel], section: str, path: Path, data: Mapping[str, Any],
+                given: Sequence[Mapping[str, Any]] = ()) -> None:
     """Validate a run's saved params on their own, so that an error names the file (damaged or
-    edited by hand) rather than a key the user never passed."""
+    edited by hand) rather than a key the user never passed. The env's settings build the env,
+    which opens the files they name (a gymnasium env's `kwargs.xml_file`): a run dir is data, so
+    a value in them that names a file is refused, before any file is opened, unless `given`
+    (this command's --config and --set layers of `section`) sets that key, and so the value the
+    env gets is the user's, not the run dir's (docs/robustness.md, "Trust")."""
     try:
         build(model, section, [data])
     except LabError as exc:
         raise LabError(f"{path}: {exc.message}", exc.hint or "fix or restore the file") from None
+    if section != "env":  # the agent's settings build networks, which open no file
+        return
+    for keys, value in named_files(data):
+        if not any(_sets(layer, keys) for layer in given):
+            named = settable(keys)
+            assign = ".".join([section, *map(str, named)]) + (
+                f"={value}" if named == keys else "=[...]")
+            shown = repr(value) if len(repr(value)) <= 120 else f"{repr(value)[:117]}..."
+            raise LabError(one_line(f"{path}: {'.'.join([section, *map(str, keys)])} names the "
+                                    f"file {shown}, and lab opens no file that a run dir names"),
+                           one_line(f"if you trust it, pass it yourself: --set "
+                                    f"{shlex.quote(assign)}"))
+
+
+# A string that names a path, not a bare name: absolute, from the home or working directory, or
+# with a separator (a Windows drive too). A bare name ("ant.xml") is not taken for one:
+# gymnasium's MuJoCo envs read it from their own assets.
+_PATH = re.compile(r"[/\\]|^\s*[~.]|^\s*[A-Za-z]:")
+
+
+def names_a_file(value: Any) -> bool:
+    """Whether a setting's value names a file (or a directory) by its path."""
+    if isinstance(value, bytes):
+        value = value.decode("utf-8", "replace")
+    return isinstance(value, str) and (_PATH.search(value) is not None or os.sep in value)
+
+
+def named_files(data: Any, keys: tuple = ()) -> Iterable[tuple[tuple, Any]]:
+    """Every value in `data` (nested mappings and lists) that names a file, with its keys."""
+    if isinstance(data, Mapping):
+        for key, value in data.items():
+            yield from named_files(value, (*keys, key))
+    elif isinstance(data, (list, tuple, set, frozenset)):
+        for index, value in enumerate(data):
+            yield from named_files(value, (*keys, index))
+    elif names_a_file(data):
+        yield keys, data
+
+
+def _sets(layer: Any, keys: tuple) -> bool:
+    """Whether merging `layer` over saved settings replaces the value at `keys` (`merge`: a
+    mapping merges into a mapping, anything else replaces what was there)."""
+    for key in keys:
+        if not isinstance(layer, Mapping):
+            return True  # set at a key above: what was below is gone
+        if key not in layer:
+            return False
+        layer = layer[key]
+    return True
+
+
+def settable(keys: tuple) -> tuple:
+    """The keys down to the first list index: what `--set` can name."""
+    for i, key in enumerate(keys):
+        if isinstance(key, int):
+            return keys[:i]
+    return keys
 
 
 def _reject_bools_as_numbers(model: type[BaseModel], data: Mapping[str, Any], section: str

@@ -11,6 +11,7 @@ import io
 import json
 import logging
 import warnings
+from collections.abc import Sequence
 from dataclasses import dataclass
 from datetime import datetime
 from pathlib import Path
@@ -102,10 +103,12 @@ def _run_onnx(path: Path, obs: torch.Tensor) -> np.ndarray:
 
 def export(fmt: Format | str, *, run_dir: Path | None = None, checkpoint: Path | None = None,
            task: str | None = None, framework: str | None = None,
-           logs_dir: Path | None = None) -> ExportResult:
+           logs_dir: Path | None = None, overrides: Sequence[str] = ()) -> ExportResult:
+    """`overrides`: `--set`-style settings, as `lab play` takes them (`play.load`): the files a
+    run's params name, which lab opens only when the user names them."""
     fmt = Format(fmt)
     loaded = load(run_dir=run_dir, checkpoint=checkpoint, task=task, framework=framework,
-                  logs_dir=logs_dir, num_envs=16)
+                  logs_dir=logs_dir, num_envs=16, overrides=overrides)
     try:
         policy = loaded.policy.eval()
         obs = _check_observations(loaded)

@@ -100,9 +100,14 @@ def plan(task: str, framework: str, *, num_envs: int | None = None, seed: int | 
         run, resume = checkpoints.find(checkpoint, logs_dir, task, fw)
         checkpoints.check_run_matches(run, task, framework)
         base = (run.params(rundir.ENV_PARAMS), run.params(rundir.AGENT_PARAMS))
-        config.check_saved(spec.config_class, "env", run.dir / rundir.ENV_PARAMS, base[0])
+        # What this command sets: the run's settings may name a file only where it does too.
+        given = [config.parse_set(overrides)]
+        if config_file is not None:
+            given.append(config.load_file(config_file))
+        config.check_saved(spec.config_class, "env", run.dir / rundir.ENV_PARAMS, base[0],
+                           [layer["env"] for layer in given])
         config.check_saved(fw.agent_config_class, "agent", run.dir / rundir.AGENT_PARAMS,
-                           base[1])
+                           base[1], [layer["agent"] for layer in given])
     env_cfg, agent_cfg = config.resolve(spec, fw, base=base, config_file=config_file,
                                         overrides=overrides, num_envs=num_envs,
                                         max_iterations=max_iterations, seed=seed,

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import enum
 import statistics
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from datetime import datetime
 from pathlib import Path
@@ -53,7 +53,8 @@ def load(*, run_dir: Path | None = None, checkpoint: Path | None = None,
     """Find the run (a checkpoint's, `run_dir`, or the newest matching one), rebuild its env
     from params/env.yaml on the CPU and load the checkpoint as a Policy. The task's
     `play_overrides` (e.g. observation noise off) apply, and `overrides` may set those keys
-    only."""
+    only, and the settings with which params/env.yaml names a file (which lab opens only when
+    the user names it this time, `config.check_saved`)."""
     if num_envs is not None and num_envs <= 0:
         raise LabError(f"--num-envs must be a positive integer, got {num_envs}")
     logs_dir = logs_dir or rundir.default_logs_dir()
@@ -67,9 +68,10 @@ def load(*, run_dir: Path | None = None, checkpoint: Path | None = None,
     spec = registry.get_task(task_name)
     fw_spec = registry.get_framework(framework_name)
     _, ckpt = checkpoints.find(str(checkpoint or run.dir), logs_dir, spec.name, fw_spec)
-    layers = [run.params(rundir.ENV_PARAMS)]
-    config.check_saved(spec.config_class, "env", run.dir / rundir.ENV_PARAMS, layers[0])
-    layers += [dict(spec.config_class.play_overrides), _play_settings(spec, overrides)]
+    saved = run.params(rundir.ENV_PARAMS)
+    given = _play_settings(spec, overrides, saved)
+    config.check_saved(spec.config_class, "env", run.dir / rundir.ENV_PARAMS, saved, [given])
+    layers = [saved, dict(spec.config_class.play_overrides), given]
     if num_envs is not None:
         layers.append({"num_envs": num_envs})
     env_cfg = config.build(spec.config_class, "env", layers)
@@ -84,17 +86,34 @@ def load(*, run_dir: Path | None = None, checkpoint: Path | None = None,
     return LoadedPolicy(run, spec, fw, ckpt, env, policy)
 
 
-def _play_settings(spec: Any, overrides: Sequence[str]) -> dict[str, Any]:
-    """`--set` for a run: only what a task lets play change (its `play_overrides` keys)."""
+def _play_settings(spec: Any, overrides: Sequence[str],
+                   saved: Mapping[str, Any]) -> dict[str, Any]:
+    """`--set` for a run: only what a task lets play change (its `play_overrides` keys), and a
+    setting with which the run's `saved` env settings name a file: the user's file instead."""
     layers = config.parse_set(overrides)
     allowed = set(spec.config_class.play_overrides)
+    files = [keys for keys, _ in config.named_files(saved)]
     wrong = [f"agent.{k}" for k in layers["agent"]] + [
-        f"env.{k}" for k in layers["env"] if k not in allowed]
+        "env." + ".".join(map(str, keys)) for keys in _leaves(layers["env"])
+        if keys[0] not in allowed and not any(keys == named[:len(keys)] for named in files)]
     if wrong:
+        settable = [f"env.{k}" for k in sorted(allowed)] + [
+            "env." + ".".join(map(str, config.settable(keys))) for keys in files]
         raise LabError(f"--set {wrong[0]} cannot change a run that plays with its own params",
                        f"a run of task '{spec.name}' may set: "
-                       f"{', '.join(f'env.{k}' for k in sorted(allowed)) or 'nothing'}")
+                       f"{', '.join(dict.fromkeys(settable)) or 'nothing'}")
     return layers["env"]
+
+
+def _leaves(tree: Mapping[str, Any], keys: tuple = ()) -> list[tuple]:
+    """The keys of every value set in `tree` (nested mappings, as `--set` makes them)."""
+    out: list[tuple] = []
+    for key, value in tree.items():
+        if isinstance(value, Mapping) and value:
+            out += _leaves(value, (*keys, key))
+        else:
+            out.append((*keys, key))
+    return out
 
 
 @dataclass
