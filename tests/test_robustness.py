@@ -458,33 +458,40 @@ def test_a_kill_during_a_re_export_leaves_the_previous_export(trained, tmp_path)
         assert (run_dir / "exported" / name).read_bytes() == data
 
 
-LONG_TRAIN = ["--num-envs", "4", "--max-iterations", "100000", "--set",
-              "agent.num_steps_per_env=8", "--set", "agent.num_learning_epochs=1"]
+LONG_TRAIN = ["--num-envs", "4", "--max-iterations", "100000"]
+# Short iterations, a checkpoint after each.
+SHORT = {"rsl_rl": ["agent.num_steps_per_env=8", "agent.num_learning_epochs=1"],
+         "sb3": ["agent.n_steps=8", "agent.batch_size=16", "agent.n_epochs=1"],
+         "skrl": ["agent.rollouts=8", "agent.learning_epochs=1"]}
 
 
-def start_training(logs: Path, *extra: str) -> subprocess.Popen:
+def start_training(logs: Path, *extra: str, framework: str = "rsl_rl") -> subprocess.Popen:
+    short = [arg for setting in SHORT[framework] for arg in ("--set", setting)]
     return subprocess.Popen(
-        [sys.executable, "-m", "labcli", "train", "--task", "cartpole", "--framework", "rsl_rl",
-         *LONG_TRAIN, *extra], env={**os.environ, "LAB_LOGS_DIR": str(logs)},
+        [sys.executable, "-m", "labcli", "train", "--task", "cartpole", "--framework", framework,
+         *LONG_TRAIN, *short, *extra], env={**os.environ, "LAB_LOGS_DIR": str(logs)},
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
 
-def wait_for_running(logs: Path, timeout: float = 120, done: str = ".candidate") -> Path:
+def wait_for_running(logs: Path, timeout: float = 120, done: str = ".candidate",
+                     framework: str = "rsl_rl") -> Path:
     """The run dir, once `done` is in it (the first iteration's last good state by default)."""
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
-        for run_dir in logs.glob("rsl_rl/cartpole/*"):
+        for run_dir in logs.glob(f"{framework}/cartpole/*"):
             if (run_dir / done).exists() or (run_dir / ".good").exists():
                 return run_dir
         time.sleep(0.05)
     raise AssertionError(f"the run did not write {done}")
 
 
-def test_a_run_dir_deleted_while_training_ends_it_in_one_line_and_stays_deleted(tmp_path):
+@pytest.mark.parametrize("framework", ["rsl_rl", "sb3", "skrl"])
+def test_a_run_dir_deleted_while_training_ends_it_in_one_line_and_stays_deleted(tmp_path,
+                                                                                framework):
     logs = tmp_path / "logs"
-    proc = start_training(logs, "--set", "agent.save_interval=1")
+    proc = start_training(logs, "--set", "agent.save_interval=1", framework=framework)
     try:
-        run_dir = wait_for_running(logs)
+        run_dir = wait_for_running(logs, framework=framework)
         # The run keeps writing while rm walks the tree, so one pass can find a directory
         # refilled behind it; a user would repeat the rm, and so does the test.
         for _ in range(20):
@@ -518,6 +525,27 @@ def test_a_checkpoint_deleted_while_it_is_written_is_said_as_a_deleted_run(tmp_p
     with pytest.raises(LabError, match="no longer exists: it was deleted or moved"):
         checkpoints.write(run_dir, fw, 1, save)
     assert list(run_dir.iterdir()) == []
+
+
+@pytest.mark.parametrize("framework", ["rsl_rl", "sb3", "skrl"])
+def test_a_run_dir_deleted_just_before_the_library_saves_stays_deleted(
+        tmp_path, monkeypatch, framework):
+    """The race the test above can hit between the staging directory and the library's save:
+    given a path, SB3 created the directories missing above it, the run dir among them."""
+    write = checkpoints.write
+
+    def deleted_first(directory, fw, iteration, save, *args, **kwargs):
+        def save_after_rm(path):
+            if iteration == 2:  # the run dir (`directory` may be a candidate inside it)
+                shutil.rmtree(kwargs.get("below") or directory)
+            save(path)
+
+        return write(directory, fw, iteration, save_after_rm, *args, **kwargs)
+
+    monkeypatch.setattr(checkpoints, "write", deleted_first)
+    with pytest.raises(LabError, match="no longer exists: it was deleted or moved"):
+        testing.train_small(framework, tmp_path, 3, [*SHORT[framework], "agent.save_interval=1"])
+    assert list(tmp_path.glob(f"{framework}/cartpole/*")) == []
 
 
 def test_a_file_written_into_a_directory_deleted_under_lab_says_it_was_deleted(

@@ -115,7 +115,10 @@ class Sb3Framework(Framework):
             # After a stop mid-rollout SB3 has counted the dropped rollout's steps; the
             # checkpoint is that of the last complete iteration, whose steps lab counted.
             model.num_timesteps = ctx.steps
-            model.save(path)
+            # Opened here: given a path, SB3 creates its missing directories, and so re-created
+            # a run dir deleted under lab.
+            with open(path, "xb") as file:
+                model.save(file)
             if isinstance(env, VecNormalize):
                 stats = callback.boundary_stats or (env.obs_rms, env.ret_rms)
                 normalizer_path(path).write_text(json.dumps(normalizer_json(env, *stats)))
