@@ -338,6 +338,26 @@ def test_a_run_whose_env_kwargs_name_a_file_is_refused_before_it_is_opened(plant
     assert sorted(p.name for p in run_dir.iterdir()) == before
 
 
+@pytest.mark.parametrize(("value", "path"), [
+    ("/etc/passwd", True), ("./model.xml", True), ("a/b", True), ("~", True), ("~/x", True),
+    (".", True), ("..", True), (b"/dev/zero", True),
+    ("ant.xml", False), (".*_foot", False), ("leg_\\d", False), ("", False), (3, False)])
+def test_a_setting_names_a_file_by_its_path_not_by_a_bare_name_or_pattern(value, path):
+    from labcli.runs.config import names_a_file
+
+    assert names_a_file(value) is path
+
+
+def test_no_task_s_own_settings_are_taken_for_files():
+    """A robot task's term settings hold patterns of body names (".*_foot"), not paths."""
+    from labcli.plugins import registry
+    from labcli.runs.config import check_saved
+
+    for name in registry.loaded().names("task"):
+        model = registry.get_task(name).config_class
+        check_saved(model, "env", Path("params/env.yaml"), model().model_dump(mode="json"))
+
+
 def test_a_file_the_user_names_this_time_is_used(tmp_path, opened):
     from gymnasium.envs.mujoco import mujoco_env
 

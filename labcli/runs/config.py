@@ -5,7 +5,6 @@ from __future__ import annotations
 import copy
 import difflib
 import os
-import re
 import shlex
 import types
 import typing
@@ -127,17 +126,19 @@ def check_saved(model: type[BaseModel], section: str, path: Path, data: Mapping[
                                     f"{shlex.quote(assign)}"))
 
 
-# A string that names a path, not a bare name: absolute, from the home or working directory, or
-# with a separator (a Windows drive too). A bare name ("ant.xml") is not taken for one:
-# gymnasium's MuJoCo envs read it from their own assets.
-_PATH = re.compile(r"[/\\]|^\s*[~.]|^\s*[A-Za-z]:")
-
-
+# A string that names a path, not a bare name: one with a separator ("/etc/passwd", "./x.xml",
+# "a/b"), from the home directory ("~", "~/x") or the working directory or its parent ("."
+# alone, ".."). A bare name ("ant.xml") is not taken for one: gymnasium's MuJoCo envs read it
+# from their own assets; nor is a pattern (".*_foot", "leg_\d": a backslash is no separator on
+# POSIX).
 def names_a_file(value: Any) -> bool:
     """Whether a setting's value names a file (or a directory) by its path."""
     if isinstance(value, bytes):
         value = value.decode("utf-8", "replace")
-    return isinstance(value, str) and (_PATH.search(value) is not None or os.sep in value)
+    if not isinstance(value, str):
+        return False
+    return (os.sep in value or bool(os.altsep and os.altsep in value)
+            or value.lstrip().startswith("~") or value.strip() in (".", ".."))
 
 
 def named_files(data: Any, keys: tuple = ()) -> Iterable[tuple[tuple, Any]]:
