@@ -167,6 +167,26 @@ def test_a_checkpoint_cut_short_anywhere_is_never_picked(trained, tmp_path_facto
     assert checkpoints.latest_complete(fw, target).iteration == 1
 
 
+def test_a_legacy_checkpoint_cut_short_anywhere_is_never_picked(trained, tmp_path):
+    """A run from before manifests has only its zip to judge by. SB3 stores torch's zips whole
+    inside its own, so a zip cut short can still read as one: the last zip inside it."""
+    run_dir = trained["sb3"]
+    fw = registry.get_framework("sb3")
+    data = (run_dir / "model_2.zip").read_bytes()
+    target = tmp_path / run_dir.name
+    target.mkdir()
+    for path in run_dir.iterdir():
+        if path.is_file() and not path.name.startswith(checkpoints.MANIFEST_PREFIX):
+            (target / path.name).write_bytes(path.read_bytes())
+    assert checkpoints.latest_complete(fw, target).iteration == 2
+    picked = []
+    for cut in range(0, len(data), 512):
+        (target / "model_2.zip").write_bytes(data[:cut])
+        if checkpoints.latest_complete(fw, target).iteration == 2:
+            picked.append(cut)
+    assert picked == [], f"{len(picked)} of {len(range(0, len(data), 512))} cuts picked"
+
+
 def test_a_zip_of_junk_under_a_checkpoint_name_is_never_picked(trained, tmp_path):
     logs, run_dir = fresh_copy(trained["sb3"], tmp_path)
     with zipfile.ZipFile(run_dir / "model_9.zip", "w") as archive:

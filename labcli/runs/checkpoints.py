@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
 import tempfile
 import zipfile
 from collections.abc import Callable
@@ -28,6 +29,8 @@ MANIFEST_PREFIX = "checkpoint_"
 # SB3's .zip and torch.save's .pt are zip containers, whose checksums tell a damaged file.
 ZIP_SUFFIXES = (".zip", ".pt", ".pth")
 MAX_MANIFEST_BYTES = 1 << 20
+# A zip's end-of-central-directory record: its size without the comment, and its signature.
+_END_RECORD, _END_SIGNATURE = 22, b"PK\x05\x06"
 
 
 def manifest_path(directory: Path, iteration: int) -> Path:
@@ -152,8 +155,18 @@ def complete(fw: FrameworkSpec, checkpoint: Checkpoint) -> bool:
 
 
 def _legacy_complete(path: Path) -> bool:
+    """A run from before manifests: its zip (SB3's, rl_games') read back whole. A zip cut
+    short can still read as one, the last of the zips stored inside it (SB3 stores torch's
+    whole): so the archive must begin at the file's first byte and end at its last."""
     try:
         with zipfile.ZipFile(path) as archive:
+            infos = archive.infolist()
+            if not infos or min(info.header_offset for info in infos) != 0:
+                return False
+            with path.open("rb") as file:
+                file.seek(-_END_RECORD - len(archive.comment), os.SEEK_END)
+                if file.read(4) != _END_SIGNATURE:
+                    return False
             return archive.testzip() is None
     except (zipfile.BadZipFile, OSError, EOFError):
         return path.suffix not in ZIP_SUFFIXES and path.is_file()
