@@ -311,7 +311,7 @@ def test_a_closed_env_says_so_on_step_reset_and_render(make):
         _one_line(err, "after close(): this env of task 'cartpole' is closed")
 
 
-def test_a_sharded_env_takes_one_seed_per_env_of_the_whole_env_and_refuses_a_step_once_closed():
+def test_a_sharded_env_checks_seeds_and_masks_as_one_env_and_refuses_calls_once_closed():
     sharded = labcli.gym.make_env("cartpole", 128, threads=2)
     whole = labcli.gym.make_env("cartpole", 128, threads=1)
     try:
@@ -321,9 +321,20 @@ def test_a_sharded_env_takes_one_seed_per_env_of_the_whole_env_and_refuses_a_ste
         with pytest.raises(ValueError) as err:
             sharded.reset(seed=seeds[:64])
         _one_line(err, "a list of 128 non-negative ints")
+        # A bad mask is refused before any shard is asked: the workers stay in step.
+        for mask, error in (([True], ValueError), (np.zeros(128, np.int64), TypeError)):
+            with pytest.raises(error) as err:
+                sharded.reset(options={"reset_mask": mask})
+            _one_line(err, "options['reset_mask'] must be 128 bools")
+        mask = np.zeros(128, bool)
+        mask[:3] = True
+        assert torch.equal(sharded.reset(options={"reset_mask": mask})[0],
+                           whole.reset(options={"reset_mask": mask})[0])
+        assert torch.equal(sharded.step(torch.zeros(128, 1))[0], whole.step(torch.zeros(128, 1))[0])
     finally:
         sharded.close()
         whole.close()
-    with pytest.raises(ValueError) as err:
-        sharded.step(torch.zeros(128, 1))
-    _one_line(err, "step() after close()")
+    for call in (lambda: sharded.step(torch.zeros(128, 1)), sharded.reset):
+        with pytest.raises(ValueError) as err:
+            call()
+        _one_line(err, "after close(): this env of task 'cartpole' is closed")

@@ -372,17 +372,16 @@ def test_a_file_the_user_names_this_time_is_used(tmp_path, opened):
     play = ["play", "--run", str(run_dir), "--episodes", "1"]
     resume = ["train", "--task", GYM, "--framework", "sb3", "--checkpoint", "latest",
               "--max-iterations", "2"]
-    for args in (play, resume):
+    export = ["export", "onnx", "--run", str(run_dir)]
+    for args in (play, export, resume):
         assert_one_line_error(lab(*args, logs=logs), f"env.kwargs.xml_file names the file "
                               f"'{model}'", f"--set env.kwargs.xml_file={model}")
     assert len(opened) == count
-    for args in (play, resume):
+    for args in (play, export, resume):
         result = lab(*args, *mine, logs=logs)
         assert result.exit_code == 0, result.output
         assert len(opened) > count and set(opened) == {str(model)}
         count = len(opened)
-    from labcli.runs.export import export
-    assert export("onnx", run_dir=run_dir, overrides=mine[1:]).path.exists()
     # A play still sets nothing else of the run's settings.
     assert_one_line_error(lab(*play, "--set", "env.kwargs.frame_skip=3", logs=logs),
                           "--set env.kwargs.frame_skip cannot change a run",

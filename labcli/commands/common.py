@@ -67,6 +67,12 @@ CheckpointOpt = Annotated[Path | None, typer.Option(help="A checkpoint file.")]
 SetOpt = Annotated[list[str] | None, typer.Option(
     "--set", metavar="SECTION.KEY=VALUE",
     help="Override a setting: env.KEY=VALUE or agent.KEY=VALUE (repeatable).")]
+# play and export of a trained run: only what the task lets play change, and the files its
+# params name (which lab opens only when the user names them).
+RunSetOpt = Annotated[list[str] | None, typer.Option(
+    "--set", metavar="env.KEY=VALUE",
+    help="Override an env setting of the run (repeatable): what its task lets play change, "
+         "and a file its params name (env.kwargs.xml_file=...).")]
 ConfigOpt = Annotated[Path | None, typer.Option(
     "--config", help="YAML file with 'env:' and 'agent:' settings (see `lab config show`).")]
 VideoLengthOpt = Annotated[int, typer.Option(help="Env steps per video.")]

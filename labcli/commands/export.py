@@ -12,6 +12,7 @@ from labcli.commands.common import (
     LastOpt,
     LogsDir,
     RunOpt,
+    RunSetOpt,
     TaskOpt,
     say,
 )
@@ -25,6 +26,7 @@ def export(
     task: TaskOpt = None,
     framework: FrameworkOpt = None,
     logs_dir: LogsDir = None,
+    set_: RunSetOpt = None,
 ) -> None:
     """Export a policy (normalizer folded in) to <run>/exported/ and check it against torch.
 
@@ -33,6 +35,6 @@ def export(
     from labcli.runs import export as exports
 
     result = exports.export(fmt, run_dir=run, checkpoint=checkpoint, task=task,
-                            framework=framework, logs_dir=logs_dir)
+                            framework=framework, logs_dir=logs_dir, overrides=set_ or [])
     say(f"wrote {result.path} and {result.metadata.name}; max abs difference from torch "
         f"{result.max_abs_diff:.2e} over {result.checked} observations")

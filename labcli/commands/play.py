@@ -39,7 +39,8 @@ def play(
     seed: Annotated[int, typer.Option(help="Seed of the evaluation episodes.")] = 0,
     set_: Annotated[list[str] | None, typer.Option(
         "--set", metavar="env.KEY=VALUE",
-        help="With --agent: override an env setting (repeatable).")] = None,
+        help="Override an env setting (repeatable): with --agent any; for a trained run "
+             "what its task lets play change, and a file its params name.")] = None,
     video: Annotated[bool, typer.Option(
         "--video", help="Record env 0 as mp4 into <run>/videos/play/.")] = False,
     video_length: VideoLengthOpt = 200,

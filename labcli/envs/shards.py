@@ -38,6 +38,8 @@ from labcli.envs.env import (
     StepOutputs,
     _autoreset_mode,
     checked_actions,
+    closed_error,
+    reset_mask,
 )
 from labcli.envs.random import BLOCKS, EnvRandom, block_bounds
 from labcli.envs.sharedmem import shared
@@ -364,12 +366,13 @@ class ShardedVecEnv(gym.vector.VectorEnv):
     # gymnasium API ---------------------------------------------------------------------------
     def reset(self, *, seed: int | Sequence[int] | None = None,
               options: dict[str, Any] | None = None):
+        if self.closed:
+            raise closed_error("reset", self.task_spec.name)
         if seed is not None:
             seed = self._local.one_seed(seed)
+        mask = reset_mask(options, self.num_envs, self.device)  # all checked, then done
+        if seed is not None:
             self._np_random, self._np_random_seed = gym.utils.seeding.np_random(seed)
-        mask = (options or {}).get("reset_mask")
-        if mask is not None:
-            mask = torch.as_tensor(mask, dtype=torch.bool)
         state = None
         if mask is None:
             state, self._resume_state = self._resume_state, None
@@ -381,6 +384,8 @@ class ShardedVecEnv(gym.vector.VectorEnv):
         return self._buffers["obs"].clone(), {}
 
     def step(self, actions: torch.Tensor):
+        if self.closed:
+            raise closed_error("step", self.task_spec.name)
         b = self._buffers
         actions = checked_actions(actions, b["actions"].shape, self.device)
         b["actions"].copy_(actions)
