@@ -265,8 +265,9 @@ def test_any_set_of_reward_weights_overrides_only_those(weights):
 
 
 # Files -----------------------------------------------------------------------------------------
-def test_an_empty_file_changes_nothing(tmp_path):
-    (tmp_path / "empty.yaml").write_text("")
+@pytest.mark.parametrize("text", ["", "env: null\nagent: null\n", "env:\n"])
+def test_an_empty_file_or_section_changes_nothing(tmp_path, text):
+    (tmp_path / "empty.yaml").write_text(text)
     assert config.load_file(tmp_path / "empty.yaml") == {"env": {}, "agent": {}}
 
 
@@ -275,6 +276,10 @@ def test_an_empty_file_changes_nothing(tmp_path):
     ("env: [unclosed", "is not valid YAML"),
     ("- env\n- agent\n", "must be a mapping"),
     ("envs:\n  num_envs: 8\n", "must be a mapping with keys 'env' and/or 'agent'"),
+    ("[]\n", "must be a mapping"),
+    ("env: [1]\n", "'env' holds list [1], not settings"),
+    ("env: 3\n", "'env' holds int 3, not settings"),
+    ("agent: x\n", "'agent' holds str 'x', not settings"),
 ])
 def test_bad_files_are_lab_errors_naming_the_file(tmp_path, text, complaint):
     path = tmp_path / "cfg.yaml"

@@ -64,11 +64,17 @@ def load_file(path: Path) -> dict[str, dict[str, Any]]:
     if not path.exists():
         raise LabError(f"config file {path} does not exist")
     try:
-        data = files.load_yaml(files.read_text(path)) or {}
+        data = files.load_yaml(files.read_text(path))
     except files.Unreadable as exc:
         raise LabError(f"config file {path} {exc}", "pass a YAML file") from None
+    data = {} if data is None else data  # an empty file
     if not isinstance(data, dict) or set(data) - set(SECTIONS):
         raise LabError(f"config file {path} must be a mapping with keys 'env' and/or 'agent'")
+    for section in SECTIONS:
+        if not isinstance(data.get(section) or {}, dict):
+            raise LabError(f"config file {path}: '{section}' holds {type(data[section]).__name__}"
+                           f" {data[section]!r}, not settings", f"give '{section}:' a mapping "
+                           "of KEY: VALUE, as `lab config show` writes it")
     return {s: data.get(s) or {} for s in SECTIONS}
 
 
