@@ -218,13 +218,14 @@ KILLED_MID_SAVE = textwrap.dedent("""
     from labcli.runs import training
 
     original = PPO.save
-    def slow_save(self, path, *args, **kwargs):
-        path = Path(path)  # the checkpoint's staging dir in the run dir (not the candidate's)
+    def slow_save(self, file, *args, **kwargs):
+        path = Path(file.name)  # the checkpoint's staging dir in the run dir (not the candidate's)
         if path.name == "model_2.zip" and path.parent.parent.name != ".candidate":
-            Path(path).write_bytes(b"PK half a checkpoint")
+            file.write(b"PK half a checkpoint")
+            file.flush()
             print("writing", flush=True)
             time.sleep(60)
-        return original(self, path, *args, **kwargs)
+        return original(self, file, *args, **kwargs)
     PPO.save = slow_save
     training.train("cartpole", "sb3", num_envs=4, max_iterations=5, logs_dir=Path(sys.argv[1]),
                    overrides=["agent.n_steps=8", "agent.batch_size=16", "agent.n_epochs=1",
