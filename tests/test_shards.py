@@ -251,13 +251,18 @@ def test_reset_mask_observations_and_resume_reach_every_shard(sharded):
     assert torch.equal(sharded.episode_length, state["episode_length"])
 
 
-def test_a_worker_that_dies_is_one_line_not_a_hang(sharded):
+@pytest.mark.parametrize("call", ["step", "reset", "get_state"])
+def test_a_worker_that_dies_is_one_line_not_a_hang(sharded, call):
+    """Whether the caller was stepping or sending a command (whose pipe then breaks: a
+    BrokenPipeError, which the command line took for a closed stdout and ended in silence)."""
     sharded.reset(seed=0)
     worker = sharded._workers[0].process
     os.kill(worker.pid, signal.SIGKILL)
     worker.join()
+    calls = {"step": lambda: sharded.step(torch.zeros(128, 1)),
+             "reset": lambda: sharded.reset(seed=1), "get_state": sharded.get_state}
     with pytest.raises(LabError, match="env shard 1's worker process ended"):
-        sharded.step(torch.zeros(128, 1))
+        calls[call]()
 
 
 ORPHANED = """

@@ -234,18 +234,32 @@ class _Worker:
 
     def send(self, command: str, args: tuple = ()) -> None:
         """Have the worker run `command` (a `_ShardEnd` command, or "close") next."""
-        self.conn.send((command, args))
+        with self._gone_if_the_pipe_breaks():
+            self.conn.send((command, args))
         self.flags[COMMAND] = 1
         self.go.release()
 
     def answer(self) -> Any:
         """The worker's reply to the last command; its error as a LabError."""
-        while not self.conn.poll(0.1):
-            _check_alive([self])
-        kind, value = self.conn.recv()
+        with self._gone_if_the_pipe_breaks():
+            while not self.conn.poll(0.1):
+                _check_alive([self])
+            kind, value = self.conn.recv()
         if kind == "error":
             raise LabError(f"env shard {self.index} (a worker process): {value.splitlines()[0]}")
         return value
+
+    @contextlib.contextmanager
+    def _gone_if_the_pipe_breaks(self) -> Iterator[None]:
+        """A pipe that breaks is a worker that died: said as such. Left to rise, a
+        BrokenPipeError reads as a closed stdout to the command line, which ends in silence."""
+        try:
+            yield
+        except (BrokenPipeError, ConnectionResetError, EOFError) as exc:
+            self.process.join(timeout=5)
+            _check_alive([self])
+            raise LabError(f"env shard {self.index}'s worker process stopped answering "
+                           f"({type(exc).__name__})", "see the lines above it for why") from None
 
     def wait(self, workers: list[_Worker]) -> None:
         """Until the worker's step is done; a LabError if it failed or a worker is gone (each
