@@ -269,3 +269,54 @@ def test_latest_passes_over_stray_and_truncated_checkpoints(tmp_path):
                                   checkpoint=checkpoints.LATEST)
     assert resumed.summary["state"] == rundir.FINISHED
     assert torch.load(fw.checkpoint_path(run_dir, 3), weights_only=True)["iter"] == 3
+
+
+# A worker that cannot finish its step (SIGSTOP): Ctrl-C waits a stated time, then ends the run.
+STOPPED_WORKER = textwrap.dedent("""
+    import io, sys
+    from pathlib import Path
+    from rich.console import Console
+    from labcli.envs import shards
+    from labcli.errors import LabError
+    from labcli.runs import training
+
+    shards.STOP_GRACE_S = 1.0
+    try:
+        training.train("cartpole", "rsl_rl", num_envs=256, max_iterations=100000,
+                       logs_dir=Path(sys.argv[1]), console=Console(file=io.StringIO()),
+                       overrides=["agent.num_steps_per_env=8", "agent.save_interval=1"])
+    except LabError as exc:
+        print(exc, flush=True)
+""")
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="finds workers through /proc")
+def test_ctrl_c_with_a_stopped_shard_worker_ends_the_run_in_a_stated_time(tmp_path):
+    """Ctrl-C stops a run at its next env step, and that step waited forever on a worker that
+    was stopped (SIGSTOP): it gives up STOP_GRACE_S after the stop was asked."""
+    logs = tmp_path / "logs"
+    proc = subprocess.Popen([sys.executable, "-c", STOPPED_WORKER, str(logs)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 120
+        while not list(logs.glob("rsl_rl/cartpole/*/model_1.pt")):
+            assert proc.poll() is None and time.monotonic() < deadline, proc.stderr.read()
+            time.sleep(0.1)
+        (worker,) = [int(pid) for pid in subprocess.run(
+            ["pgrep", "-P", str(proc.pid)], capture_output=True, text=True).stdout.split()
+            if b"pipe_handle" in Path(f"/proc/{pid}/cmdline").read_bytes()]
+        os.kill(worker, signal.SIGSTOP)
+        time.sleep(0.5)
+        start = time.monotonic()
+        proc.send_signal(signal.SIGINT)
+        out, _ = proc.communicate(timeout=60)
+    finally:
+        proc.kill()
+    assert time.monotonic() - start < 10
+    assert out.strip().splitlines()[-1].startswith(
+        "the env's shards did not answer 1 s after the stop was asked: worker of "
+        f"shard 1 (pid {worker}) is stopped (SIGSTOP)"), out
+    assert not Path(f"/proc/{worker}").exists()
+    (run_dir,) = {p.parent for p in logs.glob("rsl_rl/cartpole/*/model_1.pt")}
+    summary = json.loads((run_dir / rundir.SUMMARY).read_text())
+    assert summary["state"] == rundir.FAILED and "is stopped (SIGSTOP)" in summary["error"]

@@ -21,6 +21,7 @@ import traceback
 import weakref
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, fields
+from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
@@ -61,6 +62,8 @@ COMMAND, FAILED = 0, 1
 # How often a waiting worker checks that its parent lives: a worker ends within this long of
 # the caller's death.
 ORPHAN_CHECK_S = 0.5
+# How long a step waits for its workers once the run was asked to stop.
+STOP_GRACE_S = 10.0
 
 
 def shard_count(num_envs: int, threads: int | None) -> int:
@@ -239,11 +242,12 @@ class _Worker:
         self.flags[COMMAND] = 1
         self.go.release()
 
-    def answer(self) -> Any:
-        """The worker's reply to the last command; its error as a LabError."""
+    def answer(self, check: Callable[[], None] | None = None) -> Any:
+        """The worker's reply to the last command; its error as a LabError, as is one from
+        `check` while it waits (by default: whether the worker lives)."""
         with self._gone_if_the_pipe_breaks():
             while not self.conn.poll(0.1):
-                _check_alive([self])
+                (check or (lambda: _check_alive([self])))()
             kind, value = self.conn.recv()
         if kind == "error":
             raise LabError(f"env shard {self.index} (a worker process): {value.splitlines()[0]}")
@@ -261,15 +265,16 @@ class _Worker:
             raise LabError(f"env shard {self.index}'s worker process stopped answering "
                            f"({type(exc).__name__})", "see the lines above it for why") from None
 
-    def wait(self, workers: list[_Worker]) -> None:
-        """Until the worker's step is done; a LabError if it failed or a worker is gone (each
-        may be stepping chunks of this one's physics)."""
+    def wait(self, check: Callable[[], None]) -> None:
+        """Until the worker's step is done; a LabError if it failed, or from `check` (a worker
+        is gone, each may be stepping chunks of this one's physics; a stop asked for long
+        ago)."""
         if not _spin_acquire(self.done):
             while not self.done.acquire(timeout=0.1):
-                _check_alive(workers)
+                check()
         if self.flags[FAILED]:  # a step raised: its error is in the pipe
             self.flags[FAILED] = 0
-            self.answer()
+            self.answer(check)
 
 
 def _check_alive(workers: list[_Worker]) -> None:
@@ -299,14 +304,23 @@ def _main_not_rerun() -> Iterator[None]:
 def _stop(workers: list[_Worker]) -> None:
     for worker in workers:
         if worker.process.is_alive():
-            with contextlib.suppress(BrokenPipeError, OSError):
+            with contextlib.suppress(LabError, OSError):
                 worker.send("close")
     for worker in workers:
-        worker.process.join(timeout=5)
+        if not _stopped(worker.process.pid):  # a stopped one never closes
+            worker.process.join(timeout=5)
         if worker.process.is_alive():
             worker.process.kill()
             worker.process.join()
         worker.conn.close()
+
+
+def _stopped(pid: int) -> bool:
+    """Whether process `pid` is stopped (SIGSTOP, SIGTSTP); False where /proc cannot tell."""
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] == "T"
+    except (OSError, IndexError):
+        return False
 
 
 class ShardedVecEnv(gym.vector.VectorEnv):
@@ -340,12 +354,10 @@ class ShardedVecEnv(gym.vector.VectorEnv):
         check_fits(model, n, per_env_fields)
         board = ChunkBoard(ctx, model, [(shard.first, shard.stop) for shard in self._shards],
                            cfg.decimation, per_env_fields)
-        workers = self._workers
         # Shard 0 first, here: a config the task refuses fails before any process starts.
         self._local = LabVecEnv(
             spec, shard_cfg(first), backend="cpu", seed=seed, autoreset_mode=self.autoreset_mode,
-            shard=(0, n), physics=ShardPhysics(board, 0, steals=False,
-                                               check=lambda: _check_alive(workers)))
+            shard=(0, n), physics=ShardPhysics(board, 0, steals=False, check=self._check))
         self._board = board
         try:
             self._start(spec, seed, board, ctx, shard_cfg)
@@ -368,6 +380,7 @@ class ShardedVecEnv(gym.vector.VectorEnv):
         self._np_random, self._np_random_seed = gym.utils.seeding.np_random(seed)
         self._resume_state: dict[str, torch.Tensor] | None = None
         self._stepped = False
+        self._stop_seen: float | None = None
         self._buffers = _buffers(local, n, len(self._shards))
         self._local_end = _ShardEnd(local, self._buffers, first, 0)
         for i, shard in enumerate(self._shards[1:], start=1):
@@ -430,7 +443,7 @@ class ShardedVecEnv(gym.vector.VectorEnv):
         for worker in self._workers:
             while True:
                 try:
-                    worker.wait(self._workers)
+                    worker.wait(self._check)
                 except KeyboardInterrupt as exc:  # wait on: the worker is still stepping
                     failure = failure or exc
                     continue
@@ -439,6 +452,28 @@ class ShardedVecEnv(gym.vector.VectorEnv):
                 break
         if failure is not None:
             raise failure
+
+    def interrupted(self) -> bool:
+        """Whether the run stepping this env was asked to stop (a training run replaces this
+        with its stop request): a step that waits on a worker then gives up after
+        `STOP_GRACE_S`, rather than forever on one that was stopped (SIGSTOP)."""
+        return False
+
+    def _check(self) -> None:
+        """Called while the caller waits on the workers: a LabError if one is gone, or if a
+        stop was asked STOP_GRACE_S ago and they still step."""
+        _check_alive(self._workers)
+        if not self.interrupted():
+            return
+        now = time.monotonic()
+        self._stop_seen = self._stop_seen or now
+        if now - self._stop_seen > STOP_GRACE_S:
+            stopped = [f"{w.index} (pid {w.process.pid})" for w in self._workers
+                       if _stopped(w.process.pid)]
+            raise LabError(f"the env's shards did not answer {STOP_GRACE_S:g} s "
+                           "after the stop was asked" + (
+                               f": worker of shard {', '.join(stopped)} is stopped (SIGSTOP)"
+                               if stopped else ""), "the run keeps its last checkpoint")
 
     def close_extras(self, **kwargs: Any) -> None:
         self._stop_workers()
@@ -502,7 +537,7 @@ class ShardedVecEnv(gym.vector.VectorEnv):
         for worker, worker_args in zip(self._workers, args[1:], strict=True):
             worker.send(command, tuple(worker_args))
         mine = self._local_end.handle(command, args[0])
-        return [mine, *(worker.answer() for worker in self._workers)]
+        return [mine, *(worker.answer(self._check) for worker in self._workers)]
 
     def _split(self, state: dict[str, torch.Tensor]) -> list[dict[str, torch.Tensor]]:
         """A whole env's state cut into each shard's."""

@@ -45,6 +45,10 @@ class StopAtRequest(gym.vector.VectorWrapper):
     def __init__(self, env: gym.vector.VectorEnv, stop: interrupt.StopRequest):
         super().__init__(env)
         self.stop = stop
+        # An env that waits on other processes (the cpu backend's shards) gives up on them a
+        # while after a stop, rather than waiting forever on one that cannot finish.
+        if hasattr(env.unwrapped, "interrupted"):
+            env.unwrapped.interrupted = lambda: stop.requested
 
     def __getattr__(self, name: str) -> Any:
         if name == "env":
