@@ -2,13 +2,33 @@
 
 from __future__ import annotations
 
+import os
+import subprocess
 from collections.abc import Callable, Iterator
+from pathlib import Path
 
 import pytest
 
 # labcli settles MUJOCO_GL on import (egl without a display), and MuJoCo reads it once, on its own
 # first import: import labcli before any test module imports mujoco, so rendering tests see it.
 from labcli.plugins import registry
+
+# No internet in CI: Menagerie's robots come from the offline copy of their folders beside the
+# project (../shared/menagerie), unpacked once, as .ci/run does, unless MENAGERIE_ROOT is set.
+UNPACK = Path(__file__).resolve().parents[2] / "shared" / "menagerie" / "unpack"
+if "MENAGERIE_ROOT" not in os.environ and UNPACK.is_file():
+    os.environ["MENAGERIE_ROOT"] = subprocess.run(
+        [str(UNPACK)], check=True, capture_output=True, text=True).stdout.strip()
+
+
+def needs_menagerie(robot: str) -> pytest.MarkDecorator:
+    """Skips a test where Menagerie's `robot` is neither in MENAGERIE_ROOT nor in the cache."""
+    import mujoco_menagerie as mm
+
+    root = os.environ.get("MENAGERIE_ROOT")
+    there = (Path(root) / robot).is_dir() if root else mm.Cache().is_cached(mm.get(robot))
+    return pytest.mark.skipif(not there, reason=f"Menagerie's {robot} is not here (no internet: "
+                              "export MENAGERIE_ROOT=$(../shared/menagerie/unpack))")
 
 
 @pytest.fixture

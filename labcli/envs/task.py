@@ -7,13 +7,14 @@ on every backend. Plugins register a `TaskSpec` (labcli/envs/spec.py) naming it.
 from __future__ import annotations
 
 from collections.abc import Mapping
-from pathlib import Path
 from typing import Any, ClassVar
 
 import mujoco
 import torch
 
+from labcli.envs import models
 from labcli.envs.config import TaskConfig
+from labcli.envs.models import ModelSource
 from labcli.envs.random import EnvRandom
 from labcli.envs.sim import Sim
 
@@ -41,11 +42,11 @@ class Task:
         self.sim = sim
 
     @classmethod
-    def build_model(cls, cfg: TaskConfig, path: Path) -> mujoco.MjModel:
-        """The MjModel this task steps, from the spec's MJCF: a task may edit it first (add the
-        sensors its terms read, through `mujoco.MjSpec`). `cfg.sim_dt`, where set, is the
-        physics step."""
-        model = mujoco.MjModel.from_xml_path(str(path))
+    def build_model(cls, cfg: TaskConfig, source: ModelSource) -> mujoco.MjModel:
+        """The MjModel this task steps, from the spec's model (an MJCF file or a Menagerie
+        robot): a task may edit its `mujoco.MjSpec` first (add the sensors its terms read).
+        `cfg.sim_dt`, where set, is the physics step."""
+        model = models.load_spec(source).compile()
         if cfg.sim_dt is not None:
             model.opt.timestep = cfg.sim_dt
         return model

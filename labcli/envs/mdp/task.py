@@ -18,16 +18,17 @@ from __future__ import annotations
 
 import inspect
 from collections.abc import Callable, Sequence
-from pathlib import Path
 from typing import Any
 
 import mujoco
 import torch
 
 from labcli import refs
+from labcli.envs import models
 from labcli.envs.mdp import sensors
 from labcli.envs.mdp.config import Group, RobotTaskConfig, Term
 from labcli.envs.mdp.robot import Robot
+from labcli.envs.models import ModelSource
 from labcli.envs.random import EnvRandom
 from labcli.envs.sim import Sim
 from labcli.envs.task import Task
@@ -76,8 +77,8 @@ class RobotTask(Task):
     cfg: RobotTaskConfig
 
     @classmethod
-    def build_model(cls, cfg: RobotTaskConfig, path: Path) -> mujoco.MjModel:  # type: ignore[override]
-        spec = mujoco.MjSpec.from_file(str(path))
+    def build_model(cls, cfg: RobotTaskConfig, source: ModelSource) -> mujoco.MjModel:  # type: ignore[override]
+        spec = models.load_spec(source)
         model = spec.compile()
         needed = [s for term in _all_terms(cfg)
                   for s in getattr(impl_of(term), "sensors", lambda m, t: [])(model, term)]
