@@ -6,11 +6,14 @@ of it with `--set env.<group>.<term>...`."""
 
 from __future__ import annotations
 
+import math
 from typing import Any, ClassVar
 
 from pydantic import Field
 
+from lab_locomotion.g1 import ROBOT as G1
 from labcli.envs.mdp import config as c
+from labcli.envs.mdp.description import RobotDescription
 
 # Isaac Lab: 120 Hz physics, decimation 2, 16 s episodes.
 PHYSICS_DT = 1 / 120
@@ -168,4 +171,71 @@ class Go1FlatConfig(c.RobotTaskConfig):
     events: Go1Events = Go1Events()
     success: c.TrackedCommand | None = c.TrackedCommand(lin_vel_error=0.25, ang_vel_error=0.3)
     # As Isaac Lab's velocity tasks: a return is the weighted terms' integral over the episode.
+    rewards_per_second: bool = True
+
+
+# The Unitree G1 on flat ground: mjlab's Mjlab-Velocity-Flat-Unitree-G1 (tasks/velocity/
+# velocity_env_cfg.py with config/g1/env_cfgs.py): 200 Hz physics, decimation 4, 20 s episodes.
+class G1Commands(c.Group):
+    base_velocity: c.UniformVelocityCommand | None = c.UniformVelocityCommand(
+        resampling_time_range=(3.0, 8.0), rel_standing_envs=0.1, rel_heading_envs=0.3,
+        heading_command=True, heading_control_stiffness=0.5, lin_vel_x=(-1.0, 1.0),
+        lin_vel_y=(-1.0, 1.0), ang_vel_z=(-0.5, 0.5))
+
+
+class G1Observations(c.Group):
+    base_lin_vel: c.BaseLinVel | None = c.BaseLinVel(noise=0.5)
+    base_ang_vel: c.BaseAngVel | None = c.BaseAngVel(noise=0.2)
+    projected_gravity: c.ProjectedGravity | None = c.ProjectedGravity(noise=0.05)
+    joint_pos: c.JointPos | None = c.JointPos(noise=0.01)
+    joint_vel: c.JointVel | None = c.JointVel(noise=1.5)
+    actions: c.LastAction | None = c.LastAction()
+    velocity_commands: c.GeneratedCommands | None = c.GeneratedCommands()
+
+
+class G1Rewards(c.Group):
+    track_lin_vel_xy_exp: c.TrackLinVelXYExp | None = c.TrackLinVelXYExp(weight=2.0, std=0.5)
+    track_ang_vel_z_exp: c.TrackAngVelZExp | None = c.TrackAngVelZExp(weight=2.0,
+                                                                      std=0.5**0.5)
+    action_rate_l2: c.ActionRateL2 | None = c.ActionRateL2(weight=-0.1)
+
+
+class G1Terminations(c.Group):
+    fell_over: c.BadOrientation | None = c.BadOrientation(limit_angle=math.radians(70.0))
+
+
+class G1Events(c.Group):
+    foot_friction: c.RandomizeFriction | None = c.RandomizeFriction(
+        bodies=["left_ankle_roll_link", "right_ankle_roll_link"], friction_range=(0.3, 1.2))
+    base_com: c.RandomizeCom | None = c.RandomizeCom(
+        bodies=["torso_link"],
+        com_range={"x": (-0.025, 0.025), "y": (-0.025, 0.025), "z": (-0.03, 0.03)})
+    reset_base: c.ResetRootUniform | None = c.ResetRootUniform(
+        pose_range={"x": (-0.5, 0.5), "y": (-0.5, 0.5), "z": (0.01, 0.05), "yaw": (-3.14, 3.14)})
+    reset_robot_joints: c.ResetJointsByOffset | None = c.ResetJointsByOffset()
+    push_robot: c.PushByVelocity | None = c.PushByVelocity(
+        interval_s=(1.0, 3.0), velocity_range={
+            "x": (-0.5, 0.5), "y": (-0.5, 0.5), "z": (-0.4, 0.4), "roll": (-0.52, 0.52),
+            "pitch": (-0.52, 0.52), "yaw": (-0.78, 0.78)})
+
+
+class G1FlatConfig(c.RobotTaskConfig):
+    play_overrides: ClassVar[dict[str, Any]] = {**c.RobotTaskConfig.play_overrides,
+                                                "events": {"push_robot": None}}
+    robot: RobotDescription | None = G1
+    default_pose: str | None = "knees_bent"
+    num_envs: int = Field(256, gt=0, le=2**20, description="parallel environments")
+    episode_length_s: float = Field(20.0, gt=0, le=1e6, description="time-out, in seconds")
+    decimation: int = Field(4, gt=0, le=1000, description="physics steps per env step")
+    sim_dt: float | None = Field(0.005, gt=0, description="physics step")
+    nconmax: int | None = 40
+    njmax: int | None = 300
+    actions: c.JointPosition = c.JointPosition(scale=None)
+    clip_actions: float = 100.0
+    commands: G1Commands = G1Commands()
+    observations: G1Observations = G1Observations()
+    rewards: G1Rewards = G1Rewards()
+    terminations: G1Terminations = G1Terminations()
+    events: G1Events = G1Events()
+    success: c.TrackedCommand | None = c.TrackedCommand(lin_vel_error=0.25, ang_vel_error=0.3)
     rewards_per_second: bool = True

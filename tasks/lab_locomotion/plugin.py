@@ -3,6 +3,7 @@ use."""
 
 from pathlib import Path
 
+from lab_locomotion import g1
 from labcli.envs.spec import TaskSpec
 from labcli.plugins.hookspecs import hookimpl
 
@@ -67,6 +68,9 @@ def _spec(name: str, config: str, description: str, max_iterations: int) -> Task
 VELOCITY_NETWORK = [128, 128, 128]
 
 
+G1_ITERATIONS = 2000
+
+
 def _velocity_defaults(num_envs: int, max_iterations: int) -> dict:
     env = {"env": {"num_envs": num_envs}}
     return _gpu({
@@ -92,6 +96,33 @@ def _velocity_defaults(num_envs: int, max_iterations: int) -> dict:
     }, max_iterations=300, steps=24, sb3={"learning_rate": 1e-3})
 
 
+# mjlab's G1 velocity agent (tasks/velocity/config/g1/rl_cfg.py): 24 steps per env, [512, 256,
+# 128] ELU networks with observation normalization, 5 epochs of 4 mini-batches, lr 1e-3 adapted
+# to a KL of 0.01, entropy 0.01.
+G1_NETWORK = [512, 256, 128]
+
+
+def _g1_defaults() -> dict:
+    defaults = _velocity_defaults(num_envs=256, max_iterations=G1_ITERATIONS)
+    # rl_games: the same PPO in its terms (a mini-batch a quarter of the rollout: 6 of 24 steps).
+    defaults["rl_games"] = {"env": {"num_envs": 256}, "agent": {
+        "max_iterations": G1_ITERATIONS, "horizon_length": 24, "mini_epochs": 5,
+        "minibatch_size_per_env": 6, "learning_rate": 1e-3, "kl_threshold": 0.01,
+        "entropy_coef": 0.01, "critic_coef": 1.0, "units": G1_NETWORK},
+        "warp": {"env": {"num_envs": 4096}, "agent": {}}}
+    for name, settings in defaults.items():
+        agent = settings["agent"]
+        network = {"rsl_rl": ("actor_hidden_dims", "critic_hidden_dims"),
+                   "skrl": ("hidden_sizes",), "sb3": ("net_arch",), "rl_games": ("units",)}
+        for key in network.get(name, ()):
+            agent[key] = G1_NETWORK
+        agent.update({"rsl_rl": {"empirical_normalization": True},
+                      "skrl": {"normalize_obs": True},
+                      "sb3": {"normalize_obs": True}}.get(name, {}))
+        settings["warp"]["agent"]["max_iterations"] = G1_ITERATIONS
+    return defaults
+
+
 @hookimpl
 def register_tasks(register):
     register(_spec("ant", "AntConfig", "Isaac Lab's Ant: a four-legged ant runs toward a "
@@ -106,3 +137,10 @@ def register_tasks(register):
         success="at the 20 s time-out, mean tracking errors under 0.25 m/s (xy) and 0.3 rad/s "
                 "(yaw rate)",
         framework_defaults=_velocity_defaults(num_envs=256, max_iterations=300)))
+    register(TaskSpec(
+        name="g1-flat", task=TASK, config="lab_locomotion.config:G1FlatConfig", model=g1.MODEL,
+        description="mjlab's Velocity-Flat-Unitree-G1: MuJoCo Menagerie's Unitree G1 humanoid "
+                    "(29 DoF) tracks velocity commands on flat ground",
+        success="at the 20 s time-out, not fallen, mean tracking errors under 0.25 m/s (xy) and "
+                "0.3 rad/s (yaw rate)",
+        framework_defaults=_g1_defaults()))

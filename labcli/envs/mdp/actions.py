@@ -8,15 +8,21 @@ from typing import TYPE_CHECKING
 import torch
 
 from labcli.envs.mdp import config as c
-from labcli.envs.mdp import names
+from labcli.envs.mdp import names, robot_model
 from labcli.errors import LabError
 
 if TYPE_CHECKING:
     from labcli.envs.mdp.task import RobotTask
 
 
-def per_actuator(task: RobotTask, scale: float | dict[str, float]) -> list[float]:
-    """Each actuator's scale: one number for all, or the first pattern matching its name."""
+def per_actuator(task: RobotTask, scale: float | dict[str, float] | None) -> list[float]:
+    """Each actuator's scale: one number for all, the first pattern matching its name, or
+    (None) its joint's in the robot description."""
+    if scale is None:
+        if task.cfg.robot is None:
+            raise LabError("env.actions.scale is null and the task has no robot description "
+                           "to take each joint's from", "give env.actions.scale a number")
+        return robot_model.action_scales(task.cfg.robot, task.robot.joint_names)
     actuators = names.all_names(task.model, "actuator")
     if not isinstance(scale, dict):
         return [float(scale)] * len(actuators)

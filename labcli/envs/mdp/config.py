@@ -10,15 +10,19 @@ env.rewards.energy=null`) leaves that term out.
 from __future__ import annotations
 
 import math
+import re
 from typing import Annotated, Any, ClassVar, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from labcli.envs.config import TaskConfig
+from labcli.envs.mdp.description import RobotDescription
 
 Range = tuple[float, float]
 # Body names or patterns (regular expressions matched whole): at least one.
 Bodies = Annotated[list[str], Field(min_length=1)]
+# Site names or patterns, likewise.
+Sites = Annotated[list[str], Field(min_length=1)]
 
 
 class Term(BaseModel):
@@ -54,13 +58,16 @@ class UniformVelocityCommand(RangeChecked):
     rate in rad/s, in the base's frame) drawn per env from these ranges at reset and every
     `resampling_time_range` s. A share of envs stands (command 0); in a share of the others,
     with `heading_command`, the yaw rate steers toward a drawn heading instead
-    (`heading_control_stiffness` x the heading error, clipped to `ang_vel_z`). Logs each
+    (`heading_control_stiffness` x the heading error, clipped to `ang_vel_z`). A share
+    `rel_forward_envs` of the draws is made forward-only (mjlab's): lin x is |lin x| and at
+    least 0.3 m/s, lin y and the yaw rate 0 (a heading env's yaw rate still steers). Logs each
     episode's mean tracking errors as Metrics/<name>/error_vel_xy and .../error_vel_yaw."""
 
     impl: ClassVar[str] = "labcli.envs.mdp.commands:UniformVelocityCommand"
     resampling_time_range: Range = (10.0, 10.0)
     rel_standing_envs: float = Field(0.02, ge=0, le=1)
     rel_heading_envs: float = Field(1.0, ge=0, le=1)
+    rel_forward_envs: float = Field(0.0, ge=0, le=1)
     heading_command: bool = True
     heading_control_stiffness: float = Field(0.5, ge=0)
     lin_vel_x: Range = (-1.0, 1.0)
@@ -297,6 +304,152 @@ class UndesiredContacts(Contacts, RewardTerm):
     impl: ClassVar[str] = "labcli.envs.mdp.rewards:undesired_contacts"
 
 
+# mjlab's velocity task (tasks/velocity/mdp/rewards.py, envs/mdp/rewards.py), as its G1 uses it.
+class TrackLinearVelocity(CommandRef, RewardTerm):
+    """exp(-(|command xy - base linear velocity xy|^2 + base z velocity^2) / std^2), in the
+    base's frame (m/s): mjlab's `track_linear_velocity` (the command's z velocity is 0)."""
+
+    impl: ClassVar[str] = "labcli.envs.mdp.rewards:track_linear_velocity"
+    std: float = Field(0.5, gt=0)
+
+
+class TrackAngularVelocity(CommandRef, RewardTerm):
+    """exp(-((command yaw rate - base yaw rate)^2 + |base angular velocity xy|^2) / std^2), in
+    the base's frame (rad/s): mjlab's `track_angular_velocity`."""
+
+    impl: ClassVar[str] = "labcli.envs.mdp.rewards:track_angular_velocity"
+    std: float = Field(math.sqrt(0.5), gt=0)
+
+
+class UprightExp(RewardTerm):
+    """exp(-|xy of gravity's direction in the body's frame|^2 / std^2): 1 upright, falling off
+    with the tilt (|xy|^2 is sin^2 of it), on flat ground: mjlab's `upright`. `body`: None for
+    the root (the G1's recipe names "torso_link")."""
+
+    impl: ClassVar[str] = "labcli.envs.mdp.rewards:upright"
+    std: float = Field(math.sqrt(0.2), gt=0)
+    body: str | None = None
+
+
+PerJoint = Annotated[dict[str, Annotated[float, Field(gt=0)]], Field(min_length=1)]
+
+
+class VariablePosture(CommandRef, RewardTerm):
+    """exp(-mean over joints of ((q - default q) / std)^2), std per joint (rad) by the first
+    pattern matching its name, from `std_standing` where the command's |lin xy| + |yaw rate| is
+    below `walking_threshold`, `std_running` from `running_threshold` on, else `std_walking`:
+    mjlab's `variable_posture`."""
+
+    impl: ClassVar[str] = "labcli.envs.mdp.rewards:variable_posture"
+    std_standing: PerJoint
+    std_walking: PerJoint
+    std_running: PerJoint
+    walking_threshold: float = Field(0.05, ge=0)
+    running_threshold: float = Field(1.5, ge=0)
+
+    @model_validator(mode="after")
+    def _patterns_and_order(self) -> VariablePosture:
+        for field in ("std_standing", "std_walking", "std_running"):
+            for pattern in getattr(self, field):
+                try:
+                    re.compile(pattern)
+                except re.error as exc:
+                    raise ValueError(f"{field} has '{pattern}', not a regular expression "
+                                     f"({exc})") from None
+        if self.walking_threshold > self.running_threshold:
+            raise ValueError(f"walking_threshold ({self.walking_threshold:g}) is above "
+                             f"running_threshold ({self.running_threshold:g})")
+        return self
+
+
+class BodyAngVelXYL2(RewardTerm):
+    """The squared x and y (world frame) angular velocity of `body` ((rad/s)^2), from a MuJoCo
+    frameangvel sensor: mjlab's `body_angular_velocity_penalty`."""
+
+    impl: ClassVar[str] = "labcli.envs.mdp.rewards:body_angular_velocity_penalty"
+    body: str
+
+
+class AngularMomentumL2(RewardTerm):
+    """The squared norm of the whole robot's angular momentum about its center of mass
+    ((kg m^2/s)^2), from a MuJoCo subtreeangmom sensor on the root: mjlab's
+    `angular_momentum_penalty` (its robot/root_angmom)."""
+
+    impl: ClassVar[str] = "labcli.envs.mdp.rewards:angular_momentum_penalty"
+
+
+class SoftJointPosLimits(RewardTerm):
+    """Over the actuated joints, how far each is outside its soft limits (rad or m): its range
+    shrunk about its middle to `soft_factor` of it; unlimited joints never are. mjlab's
+    `joint_pos_limits` with `soft_joint_pos_limit_factor`."""
+
+    impl: ClassVar[str] = "labcli.envs.mdp.rewards:joint_pos_limits"
+    soft_factor: float = Field(0.9, gt=0, le=1)
+
+
+class CommandGated(CommandRef):
+    """A term that is 0 wherever the command's |lin xy| + |yaw rate| is at or below
+    `command_threshold`, as mjlab's foot terms."""
+
+    command_threshold: float = Field(0.05, ge=0)
+
+
+class FeetClearance(CommandGated, RewardTerm):
+    """sum over the feet's sites of |height - target_height| x |site xy velocity| (m x m/s,
+    world frame; height above the terrain: on flat ground, the site's z): mjlab's
+    `feet_clearance`."""
+
+    impl: ClassVar[str] = "labcli.envs.mdp.rewards:feet_clearance"
+    sites: Sites
+    target_height: float = Field(0.1, gt=0)
+
+
+class FootContactTerm(CommandGated):
+    """A term about the feet's contact with the terrain: the contacts of each named body's
+    subtree with the world body's geoms, from MuJoCo contact sensors; a foot touches where any
+    contact is found."""
+
+    bodies: Bodies
+
+
+class FeetSwingHeight(FootContactTerm, RewardTerm):
+    """At each foot's first contact, (peak height / target_height - 1)^2, summed over the feet:
+    the peak is its site's highest height above the terrain seen at a step's end while in the
+    air, cleared at landing and at reset: mjlab's `feet_swing_height`. One site on each foot."""
+
+    impl: ClassVar[str] = "labcli.envs.mdp.rewards:feet_swing_height"
+    sites: Sites
+    target_height: float = Field(0.1, gt=0)
+
+
+class FeetSlip(FootContactTerm, RewardTerm):
+    """sum over the feet touching the terrain of |site xy velocity|^2 ((m/s)^2, world frame):
+    mjlab's `feet_slip`. One site on each foot."""
+
+    impl: ClassVar[str] = "labcli.envs.mdp.rewards:feet_slip"
+    sites: Sites
+
+
+class SoftLanding(FootContactTerm, RewardTerm):
+    """sum over the feet making their first contact of the net contact force's norm (N):
+    mjlab's `soft_landing`."""
+
+    impl: ClassVar[str] = "labcli.envs.mdp.rewards:soft_landing"
+
+
+class SelfCollisions(RewardTerm):
+    """The number of contacts between bodies of `body`'s subtree (None: the root's, the whole
+    robot) whose force exceeds `force_threshold` (N), at the env step's end, from a MuJoCo
+    contact sensor reporting the `max_contacts` of largest force. mjlab's
+    `self_collision_cost` counts instead the physics steps of the env step (its 4-step
+    history) in which a self-contact's force exceeded it: lab sees the state once per step."""
+
+    impl: ClassVar[str] = "labcli.envs.mdp.rewards:self_collision_cost"
+    force_threshold: float = Field(10.0, ge=0)
+    body: str | None = None
+    max_contacts: int = Field(8, ge=1, le=64)
+
+
 # terminations ----------------------------------------------------------------------------------
 class TerminationTerm(Term):
     pass
@@ -420,9 +573,10 @@ class RandomizeCom(ModelEvent):
 # actions ---------------------------------------------------------------------------------------
 class ActionTerm(Term):
     """How actions in [-1, 1] become controls: `scale` for every actuator, or per actuator by
-    regular expressions on their names (the first that matches wins)."""
+    regular expressions on their names (the first that matches wins), or None: each joint's
+    from the task's robot description (env.robot)."""
 
-    scale: float | dict[str, float] = 1.0
+    scale: float | dict[str, float] | None = 1.0
 
 
 class JointEffort(ActionTerm):
@@ -473,6 +627,8 @@ class RobotTaskConfig(TaskConfig):
 
     play_overrides: ClassVar[dict[str, Any]] = {"observation_noise": False}
 
+    robot: RobotDescription | None = Field(None, description="the robot's motors, gains and "
+                                           "parts, written into the model; None: the MJCF's own")
     root_body: str | None = Field(None, description="the floating base; None: the first body "
                                   "with a free joint")
     default_pose: str | None = Field("home", description="the model's keyframe that resets "

@@ -12,6 +12,8 @@ once as `Term(task, cfg)` and called every step, which may also have:
 - `names`: observation column names;
 - `sensors(model, cfg)` (a staticmethod): the MuJoCo sensors it reads (labcli/envs/mdp/sensors.py),
   added to the model before it is compiled.
+State that several terms read and carry from step to step (the feet's contacts) is an object
+they share through `task.shared`, whose hooks run once.
 """
 
 from __future__ import annotations
@@ -25,7 +27,7 @@ import torch
 
 from labcli import refs
 from labcli.envs import models
-from labcli.envs.mdp import sensors
+from labcli.envs.mdp import robot_model, sensors
 from labcli.envs.mdp.config import Group, RobotTaskConfig, Term
 from labcli.envs.mdp.robot import Robot
 from labcli.envs.models import ModelSource
@@ -79,6 +81,8 @@ class RobotTask(Task):
     @classmethod
     def build_model(cls, cfg: RobotTaskConfig, source: ModelSource) -> mujoco.MjModel:  # type: ignore[override]
         spec = models.load_spec(source)
+        if cfg.robot is not None:
+            robot_model.apply(spec, cfg.robot)
         model = spec.compile()
         needed = [s for term in _all_terms(cfg)
                   for s in getattr(impl_of(term), "sensors", lambda m, t: [])(model, term)]
@@ -99,6 +103,8 @@ class RobotTask(Task):
         super().__init__(cfg, sim)
         self.model = sim.model
         self._constants: dict[object, torch.Tensor] = {}
+        self._shared: dict[object, Any] = {}
+        self._terms_made = False
         self.num_envs = n = sim.num_envs
         self.step_dt = sim.model.opt.timestep * cfg.decimation
         self.robot = Robot(sim, cfg.root_body, cfg.default_pose)
@@ -121,8 +127,12 @@ class RobotTask(Task):
                          else None)
         every = [*self._commands.values(), *self._obs, *self._rewards, *self._terminations,
                  *self._events, *([self._success] if self._success else [])]
+        self._terms_made = True
+        shared = list(self._shared.values())
         self._pre_physics = [b.pre_physics for b in every if b.pre_physics is not None]
         self._after_step = [b.after_step for b in every if b.after_step is not None]
+        # What terms share advances after the terms' own hooks: they read this step's state.
+        self._after_step += [s.after_step for s in shared if hasattr(s, "after_step")]
         self._metrics = [(b.name, b.metrics) for b in every if b.metrics is not None]
         # Start-up events (per-env physics) run once, at the env's first reset.
         self._startups = [b.compute.startup for b in self._events
@@ -131,6 +141,7 @@ class RobotTask(Task):
         self._event_resets = [b.reset for b in self._events if b.reset is not None]
         self._term_resets = [b.reset for b in every
                              if b.reset is not None and b not in self._events]
+        self._term_resets += [s.reset for s in shared if hasattr(s, "reset")]
         if not self._obs:
             raise LabError("the task's config lists no observation terms",
                            "give env.observations at least one term")
@@ -205,6 +216,18 @@ class RobotTask(Task):
             raise LabError(f"a term reads command '{name}', which env.commands does not have",
                            f"name one of {sorted(self._commands) or 'no commands: add one'}")
         return built.made
+
+    def shared(self, key: object, make: Callable[[], Any]) -> Any:
+        """The object terms share under `key` (labcli/envs/mdp/feet.py), made by the first
+        term that asks, in its `__init__`; its optional `after_step()` and `reset(mask)` run
+        once per step and reset, after the terms' own."""
+        made = self._shared.get(key)
+        if made is None:
+            if self._terms_made:
+                raise RuntimeError(f"shared state {key!r} asked for after the terms were made: "
+                                   "its hooks would never run; ask in the term's __init__")
+            made = self._shared[key] = make()
+        return made
 
     def constant(self, values: Sequence[float] | float) -> torch.Tensor:
         """A tensor of `values` on the sim's device and dtype, made on first use and kept (by

@@ -1,0 +1,86 @@
+"""A robot's description, as a task's config holds it (`env.robot`, `--set env.robot...`): its
+actuated joints grouped by motor, with effort and velocity limits, armature (the rotor's inertia
+reflected through the gearbox) and PD gains, each joint's action scale, and the model's parts the
+terms name (feet, contact bodies, the collision set). `labcli.envs.mdp.robot_model` writes it
+into the model's MjSpec before compiling.
+
+pydantic only (no torch, no MuJoCo), as the terms' configs: a task's config imports it.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from typing import Literal
+
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+Patterns = list[str]
+
+
+class Actuators(BaseModel):
+    """The joints one kind of motor drives (names or regular expressions matched whole) and
+    that motor's numbers. Gains left out follow from the armature (as mjlab's robots): a
+    stiffness of armature x (2 pi f)^2 and a damping of 2 zeta x armature x 2 pi f, for the
+    robot's natural frequency f and damping ratio zeta. An action scale left out is a quarter
+    of the effort limit over the stiffness (mjlab's): an action of 1 asks for a quarter of the
+    motor's torque."""
+
+    model_config = ConfigDict(extra="forbid", validate_assignment=True, allow_inf_nan=False)
+
+    joints: Patterns = Field(min_length=1)
+    effort_limit: float = Field(gt=0, description="N m (N for a slide joint)")
+    velocity_limit: float | None = Field(None, gt=0, description="rad/s (m/s), the motor's")
+    armature: float = Field(ge=0, description="reflected rotor inertia, kg m^2")
+    stiffness: float | None = Field(None, ge=0, description="kp, N m/rad; None: from armature")
+    damping: float | None = Field(None, ge=0, description="kd, N m s/rad; None: from armature")
+    action_scale: float | None = Field(None, gt=0, description="rad per unit of action; None: "
+                                       "0.25 x effort_limit / stiffness")
+
+    def gains(self, frequency_hz: float, damping_ratio: float) -> tuple[float, float]:
+        """(kp, kd): as given, else derived from the armature."""
+        omega = 2.0 * math.pi * frequency_hz
+        kp = self.stiffness if self.stiffness is not None else self.armature * omega**2
+        kd = (self.damping if self.damping is not None
+              else 2.0 * damping_ratio * self.armature * omega)
+        return kp, kd
+
+    def scale(self, frequency_hz: float, damping_ratio: float) -> float:
+        if self.action_scale is not None:
+            return self.action_scale
+        kp, _ = self.gains(frequency_hz, damping_ratio)
+        if kp <= 0:
+            raise ValueError("an action scale derived from a stiffness of 0 is infinite: give "
+                             "action_scale, a stiffness or an armature")
+        return 0.25 * self.effort_limit / kp
+
+
+class RobotDescription(BaseModel):
+    """What a task needs to know of its robot beyond the MJCF, in one place a user can read and
+    change. `base`: how the robot's root moves (floating: a free joint, as legged robots)."""
+
+    model_config = ConfigDict(extra="forbid", validate_assignment=True, allow_inf_nan=False)
+
+    base: Literal["floating"] = "floating"
+    natural_frequency_hz: float = Field(10.0, gt=0, description="of the derived PD gains")
+    damping_ratio: float = Field(2.0, gt=0, description="of the derived PD gains")
+    actuators: dict[str, Actuators] = Field(min_length=1, description="by motor: the first "
+                                            "group whose patterns match a joint drives it")
+    feet: Patterns = Field(default_factory=list, description="sites at the soles")
+    foot_bodies: Patterns = Field(default_factory=list, description="bodies whose contacts "
+                                  "with the ground are the feet's")
+    contact_pairs: Patterns | None = Field(None, description="the model's explicit contact "
+                                           "pairs to keep, by name; None: all of them")
+
+    @model_validator(mode="after")
+    def _scales_finite(self) -> RobotDescription:
+        for actuators in self.actuators.values():
+            actuators.scale(self.natural_frequency_hz, self.damping_ratio)
+        return self
+
+    def group_of(self, joint: str) -> tuple[str, Actuators] | None:
+        """The first group whose patterns match `joint` whole; None if none does."""
+        for name, group in self.actuators.items():
+            if any(re.fullmatch(p, joint) for p in group.joints):
+                return name, group
+        return None

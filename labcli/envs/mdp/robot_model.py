@@ -1,0 +1,54 @@
+"""A robot description (`labcli.envs.mdp.description`) written into the model's MjSpec before
+it is compiled: each actuated joint's armature and effort limit, its actuator a PD position
+servo with the description's gains, and the contact pairs it keeps."""
+
+from __future__ import annotations
+
+import re
+
+import mujoco
+
+from labcli.envs.mdp.description import RobotDescription
+from labcli.errors import LabError
+
+
+def apply(spec: mujoco.MjSpec, robot: RobotDescription) -> None:
+    f, zeta = robot.natural_frequency_hz, robot.damping_ratio
+    for actuator in spec.actuators:
+        joint = spec.joint(actuator.target)
+        if actuator.trntype != mujoco.mjtTrn.mjTRN_JOINT or joint is None:
+            raise LabError(f"actuator '{actuator.name}' drives no joint",
+                           "a robot description describes joints that actuators drive")
+        found = robot.group_of(joint.name)
+        if found is None:
+            raise LabError(f"joint '{joint.name}' (actuator '{actuator.name}') matches no group "
+                           "of env.robot.actuators",
+                           f"add a pattern for it to one of {sorted(robot.actuators)}")
+        group = found[1]
+        kp, kd = group.gains(f, zeta)
+        joint.armature = group.armature
+        # Both limits: the joint's caps whatever acts through the actuator, the actuator's what
+        # the servo asks for.
+        joint.actfrcrange = [-group.effort_limit, group.effort_limit]
+        joint.actfrclimited = mujoco.mjtLimited.mjLIMITED_TRUE
+        inherit = actuator.inheritrange  # the servo's targets: the joint's range, if so
+        actuator.set_to_position(kp=kp, kv=kd)
+        actuator.inheritrange = inherit
+        actuator.forcerange = [-group.effort_limit, group.effort_limit]
+        actuator.forcelimited = mujoco.mjtLimited.mjLIMITED_TRUE
+    if robot.contact_pairs is not None:
+        for pair in list(spec.pairs):
+            if not any(re.fullmatch(p, pair.name) for p in robot.contact_pairs):
+                spec.delete(pair)
+
+
+def action_scales(robot: RobotDescription, joints: list[str]) -> list[float]:
+    """Each joint's action scale (rad per unit of action), from its group."""
+    scales = []
+    for joint in joints:
+        found = robot.group_of(joint)
+        if found is None:
+            raise LabError(f"joint '{joint}' matches no group of env.robot.actuators",
+                           f"add a pattern for it to one of {sorted(robot.actuators)}")
+        scales.append(found[1].scale(robot.natural_frequency_hz, robot.damping_ratio))
+    return scales
