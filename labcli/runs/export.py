@@ -21,6 +21,7 @@ import numpy as np
 import torch
 
 from labcli import __version__, files
+from labcli.envs import models
 from labcli.errors import LabError
 from labcli.plugins import registry
 from labcli.runs import rundir
@@ -142,15 +143,18 @@ def export(fmt: Format | str, *, run_dir: Path | None = None, checkpoint: Path |
 
 def describe(loaded: LoadedPolicy, fmt: Format, path: Path) -> dict[str, Any]:
     """The exported file's metadata: its input and output with units, conventions and the rule
-    from action to actuator command (the task's own words), the timing, and its provenance."""
+    from action to actuator command (the task's own words), the timing, and its provenance
+    (the robot model among it)."""
     env = loaded.env
     io_ = env.describe()
     library = loaded.framework.spec.library
     dists = ("mujoco", "torch", library, *(("onnx",) if fmt is Format.onnx else ()))
+    model = getattr(loaded.spec, "model", None)  # a gym: task's is gymnasium's own
     return {
         "file": path.name,
         "format": fmt.value,
         "task": loaded.spec.name,
+        **({"model": models.describe(model)} if model is not None else {}),
         "framework": loaded.framework.name,
         "run": loaded.run.dir.name,
         "checkpoint": loaded.checkpoint.path.name,

@@ -14,7 +14,7 @@ from labcli.errors import LabError
 from labcli.plugins import registry
 from labcli.plugins.config import AgentConfig
 from labcli.plugins.framework import Checkpoint, FrameworkSpec
-from labcli.runs import checkpoints, config, rundir
+from labcli.runs import checkpoints, config, recorded, rundir
 from labcli.runs.video import VideoSettings
 
 
@@ -34,6 +34,8 @@ class TrainPlan:
     # What a resume changes: {"agent.learning_rate": (old, new), ...}, all of them resumable.
     changes: dict[str, tuple[Any, Any]] = field(default_factory=dict)
     ranks: int = 1  # data-parallel processes, each with env_cfg.num_envs envs
+    # Lines to say after the plan's (a resumed run's model changed since it was recorded).
+    warnings: list[str] = field(default_factory=list)
 
     @property
     def write_dir(self) -> Path:
@@ -95,10 +97,12 @@ def plan(task: str, framework: str, *, num_envs: int | None = None, seed: int | 
         raise LabError(f"--num-envs must be a positive integer, got {num_envs}")
     if run_name is not None:
         rundir.check_run_name(run_name)
-    run = resume = base = None
+    run = resume = base = warning = None
     if checkpoint is not None:
         run, resume = checkpoints.find(checkpoint, logs_dir, task, fw)
         checkpoints.check_run_matches(run, task, framework)
+        # The model the run trained on, whatever the task names now.
+        spec, warning = recorded.spec_of(run, spec)
         base = (run.params(rundir.ENV_PARAMS), run.params(rundir.AGENT_PARAMS))
         # What this command sets: the run's settings may name a file only where it does too.
         given = [config.parse_set(overrides)]
@@ -126,4 +130,4 @@ def plan(task: str, framework: str, *, num_envs: int | None = None, seed: int | 
             f"checkpoint {resume.path.name} is at iteration {resume.iteration}, and max_iterations"
             f" is {agent_cfg.max_iterations}", "pass a larger --max-iterations to train further")
     return TrainPlan(spec, fw, env_cfg, agent_cfg, logs_dir, device, backend, run_name, run,
-                     resume, video, changes, ranks)
+                     resume, video, changes, ranks, [warning] if warning else [])

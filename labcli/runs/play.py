@@ -11,6 +11,7 @@ from pathlib import Path
 from typing import Any
 
 import torch
+from rich.console import Console
 
 from labcli import files
 from labcli.envs.make import make_env
@@ -20,7 +21,7 @@ from labcli.errors import LabError
 from labcli.plugins import registry
 from labcli.plugins.framework import Checkpoint, Framework
 from labcli.plugins.policy import Policy
-from labcli.runs import checkpoints, config, loading, rundir
+from labcli.runs import checkpoints, config, loading, recorded, rundir
 from labcli.runs import video as videos
 from labcli.runs.video import VideoSettings
 
@@ -51,10 +52,10 @@ def load(*, run_dir: Path | None = None, checkpoint: Path | None = None,
          num_envs: int | None = None, seed: int = 0,
          overrides: Sequence[str] = ()) -> LoadedPolicy:
     """Find the run (a checkpoint's, `run_dir`, or the newest matching one), rebuild its env
-    from params/env.yaml on the CPU and load the checkpoint as a Policy. The task's
-    `play_overrides` (e.g. observation noise off) apply, and `overrides` may set those keys
-    only, and the settings with which params/env.yaml names a file (which lab opens only when
-    the user names it this time, `config.check_saved`)."""
+    on the CPU from params/env.yaml and the model it recorded, and load the checkpoint as a
+    Policy. The task's `play_overrides` (e.g. observation noise off) apply, and `overrides`
+    may set those keys only, and the settings with which params/env.yaml names a file (which
+    lab opens only when the user names it this time, `config.check_saved`)."""
     if num_envs is not None and num_envs <= 0:
         raise LabError(f"--num-envs must be a positive integer, got {num_envs}")
     logs_dir = logs_dir or rundir.default_logs_dir()
@@ -65,7 +66,11 @@ def load(*, run_dir: Path | None = None, checkpoint: Path | None = None,
     else:
         run = rundir.latest(logs_dir, task, framework)
     task_name, framework_name = run.identity()
-    spec = registry.get_task(task_name)
+    # The model the run trained on, whatever the task names now.
+    spec, warning = recorded.spec_of(run, registry.get_task(task_name))
+    if warning is not None:
+        Console(stderr=True, markup=False).print(f"warning: {warning}", highlight=False,
+                                                 soft_wrap=True)
     fw_spec = registry.get_framework(framework_name)
     _, ckpt = checkpoints.find(str(checkpoint or run.dir), logs_dir, spec.name, fw_spec)
     saved = run.params(rundir.ENV_PARAMS)

@@ -65,7 +65,7 @@ NUMBER = (int, float)
 MANIFEST_FIELDS = {"task": str, "framework": str, "seed": int, "device": str, "backend": str,
                    "num_envs": int, "started": str, "first_started": str, "pid": int,
                    "host": str, "pid_started": (int, type(None)), "state": str, "versions": dict,
-                   "resumed_from": str, "sessions": list, "ranks": int}
+                   "resumed_from": str, "sessions": list, "ranks": int, "model": dict}
 SUMMARY_FIELDS = {"state": str, "iterations": int, "steps": int, "wall_time_s": NUMBER,
                   "total_wall_time_s": NUMBER, "mean_return": (*NUMBER, type(None)),
                   "mean_episode_length": (*NUMBER, type(None)),

@@ -21,7 +21,7 @@ from rich.console import Console
 from torch.utils.tensorboard import SummaryWriter
 
 from labcli import __version__, files
-from labcli.envs import metrics, mjwarnings, wrappers
+from labcli.envs import metrics, mjwarnings, models, wrappers
 from labcli.envs.config import TaskConfig
 from labcli.envs.cores import available_memory, cores, gib
 from labcli.envs.make import make_env
@@ -191,6 +191,8 @@ class _Session:
         }
         if self.ranks.active:  # num_envs is each rank's
             manifest["ranks"] = self.ranks.world_size
+        if hasattr(plan.spec, "model"):  # lab's own tasks: the model play and resume rebuild
+            manifest["model"] = models.describe(plan.spec.model)
         if plan.resume is not None:
             manifest["resumed_from"] = plan.resume.path.name
         rundir.write_json(run_.dir, rundir.MANIFEST, manifest)

@@ -51,6 +51,8 @@ def train(task: str, framework: str, *, num_envs: int | None = None, seed: int |
             console.print(f"warning: plugin '{failure.plugin}' ({failure.provider}) failed to "
                           f"load: {failure.error}", highlight=False, soft_wrap=True)
         console.print(the_plan.describe(), highlight=False, soft_wrap=True)
+        for warning in the_plan.warnings:
+            console.print(f"warning: {warning}", highlight=False, markup=False, soft_wrap=True)
         # torch, MuJoCo and the framework's library: seconds, after the line above.
         from labcli.runs import session
 
