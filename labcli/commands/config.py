@@ -18,16 +18,21 @@ def show(
         help="Show the defaults `lab train --backend` picks: cpu, or warp (GPU scale) "
              "[warp where CUDA is available].")] = None,
 ) -> None:
-    """Print the fully resolved env and agent config as YAML, fit for `lab train --config`.
+    """Print the fully resolved env and agent config as YAML, fit for `lab train --config`,
+    after a comment that says which model the task uses (nothing is downloaded).
 
     Example: lab config show --task cartpole --framework sb3 --set agent.n_epochs=10 > my.yaml
     Example: lab config show --task humanoid --framework rsl_rl --backend warp
     """
+    from labcli.envs import models
     from labcli.plugins import registry
     from labcli.runs import config
     from labcli.runs.plan import gpu_scale
 
+    spec = registry.get_task(task)
     env_cfg, agent_cfg = config.resolve(
-        registry.get_task(task), registry.get_framework(framework), config_file=config_file,
+        spec, registry.get_framework(framework), config_file=config_file,
         overrides=set_ or [], gpu_scale=gpu_scale(backend, None))
-    out().print(config.dump(env_cfg, agent_cfg), end="", highlight=False, soft_wrap=True)
+    model = f"# model: {models.about_line(spec.model)}\n" if hasattr(spec, "model") else ""
+    out().print(model + config.dump(env_cfg, agent_cfg), end="", highlight=False,
+                soft_wrap=True, markup=False)

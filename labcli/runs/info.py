@@ -1,19 +1,23 @@
-"""`lab info`: versions and what this machine can do (rendering, CUDA, MuJoCo Warp)."""
+"""`lab info`: versions and what this machine can do (rendering, CUDA, MuJoCo Warp); with a task
+or a run, which model it uses."""
 
 from __future__ import annotations
 
 import importlib.util
+from pathlib import Path
 
 import mujoco
 import torch
 
 from labcli import __version__
+from labcli.envs import models
 from labcli.envs.render import gl
 from labcli.envs.render.scene import SceneRenderer
 from labcli.errors import LabError
 from labcli.plugins import registry
+from labcli.runs import recorded, rundir
 
-PACKAGES = ("mujoco", "torch", "gymnasium", "mujoco-warp", "warp-lang")
+PACKAGES = ("mujoco", "mujoco-menagerie", "torch", "gymnasium", "mujoco-warp", "warp-lang")
 # One sphere: the smallest scene whose rendering exercises the whole GL path.
 PROBE_MODEL = '<mujoco><worldbody><geom type="sphere" size="0.1"/></worldbody></mujoco>'
 
@@ -37,6 +41,24 @@ def collect() -> dict[str, str]:
                    if torch.cuda.is_available() else "no")
     out["mujoco_warp"] = _warp()
     return out
+
+
+def model(task: str | None = None, run_dir: Path | None = None) -> dict[str, str]:
+    """Which model a task uses, or a run recorded (and would play with), as name → value: a
+    Menagerie robot's entry, package version and where its files are read from, found without
+    downloading anything."""
+    if run_dir is not None:
+        run = rundir.open_run(run_dir)
+        task_name, _ = run.identity()
+        rows = {"run": str(run.dir), "task": task_name}
+        return {**rows, **recorded.about(run, registry.get_task(task_name))}
+    if task is None:
+        return {}
+    spec = registry.get_task(task)
+    rows = {"task": spec.name}
+    if hasattr(spec, "model"):
+        return {**rows, **models.about(spec.model)}
+    return {**rows, "model": spec.description}  # gym:<id>: gymnasium's own
 
 
 def _rendering() -> str:
