@@ -18,17 +18,39 @@ if TYPE_CHECKING:
     from labcli.envs.mdp.task import RobotTask
 
 PREFIX = "lab:"
-# A contact sensor's intprm: what it reports (the force), how contacts combine (their net
-# force), and how many results (one).
-_CONTACT_FORCE = 1 << int(mujoco.mjtConDataField.mjCONDATA_FORCE)
-_NETFORCE = 3
+# A contact sensor's intprm: what it reports (a bit per field: the number of contacts matched,
+# their force), how contacts combine (MuJoCo's reductions by number) and how many results.
+_CONTACT_FIELDS = {"found": mujoco.mjtConDataField.mjCONDATA_FOUND,
+                   "force": mujoco.mjtConDataField.mjCONDATA_FORCE}
+_REDUCE = {"none": 0, "mindist": 1, "maxforce": 2, "netforce": 3}
+# How a sensor's target (and a contact sensor's `ref`) is matched: a body's inertial frame, its
+# own frame (`xbody`; for a contact sensor, any body of its subtree), a site, a joint.
+_OBJTYPES = {"body": mujoco.mjtObj.mjOBJ_BODY, "xbody": mujoco.mjtObj.mjOBJ_XBODY,
+             "site": mujoco.mjtObj.mjOBJ_SITE, "joint": mujoco.mjtObj.mjOBJ_JOINT}
+# Sensors whose value is one MuJoCo sensor on the target as it is (frame sensors: world frame).
+_PLAIN = {"framepos": mujoco.mjtSensor.mjSENS_FRAMEPOS,
+          "framequat": mujoco.mjtSensor.mjSENS_FRAMEQUAT,
+          "framexaxis": mujoco.mjtSensor.mjSENS_FRAMEXAXIS,
+          "frameyaxis": mujoco.mjtSensor.mjSENS_FRAMEYAXIS,
+          "framelinvel": mujoco.mjtSensor.mjSENS_FRAMELINVEL,
+          "frameangvel": mujoco.mjtSensor.mjSENS_FRAMEANGVEL,
+          "subtreeangmom": mujoco.mjtSensor.mjSENS_SUBTREEANGMOM,
+          "jointactuatorfrc": mujoco.mjtSensor.mjSENS_JOINTACTFRC}
 
 
 @dataclass(frozen=True)
 class Sensor:
     name: str
-    kind: str  # "force", "torque", "contact", "jointactuatorfrc"
-    target: str  # a body's name, or a joint's for jointactuatorfrc
+    kind: str  # "force", "torque", "contact", or one of _PLAIN's
+    target: str  # a body's, site's or joint's name
+    objtype: str = "body"  # how `target` is matched: a key of _OBJTYPES
+    # Contact sensors only: the other side (None: anything), how it is matched, the fields
+    # reported per result, how contacts combine and how many results.
+    ref: str | None = None
+    reftype: str = "body"
+    fields: tuple[str, ...] = ("force",)
+    reduce: str = "netforce"
+    num: int = 1
 
 
 def body_names(model: mujoco.MjModel, patterns: Sequence[str]) -> list[str]:
@@ -54,7 +76,32 @@ def contact(body: str) -> Sensor:
 
 
 def joint_torque(joint: str) -> Sensor:
-    return Sensor(f"{PREFIX}jointactuatorfrc:{joint}", "jointactuatorfrc", joint)
+    return Sensor(f"{PREFIX}jointactuatorfrc:{joint}", "jointactuatorfrc", joint, "joint")
+
+
+def frame(kind: str, objtype: str, target: str) -> Sensor:
+    """A frame sensor (`framepos`, `framequat`, `framexaxis`, `frameyaxis`, `framelinvel`,
+    `frameangvel`: in the world frame) on a site or a body's own frame (`xbody`)."""
+    return Sensor(f"{PREFIX}{kind}:{objtype}:{target}", kind, target, objtype)
+
+
+def subtree_angmom(body: str) -> Sensor:
+    """The angular momentum of `body`'s subtree about its center of mass (world frame)."""
+    return Sensor(f"{PREFIX}subtreeangmom:{body}", "subtreeangmom", body)
+
+
+def subtree_contact(body: str, ref: str, reftype: str) -> Sensor:
+    """The contacts between `body`'s subtree and `ref`: how many (found) and their net force
+    (N, world frame), 4 values."""
+    return Sensor(f"{PREFIX}contact:subtree:{body}:{reftype}:{ref}", "contact", body, "xbody",
+                  ref=ref, reftype=reftype, fields=("found", "force"))
+
+
+def self_contacts(body: str, num: int) -> Sensor:
+    """The `num` contacts of largest force between bodies of `body`'s subtree: each one's force
+    (N, in its contact's frame; zeros past the contacts there are), `3 num` values."""
+    return Sensor(f"{PREFIX}self_contacts:{body}:{num}", "contact", body, "xbody", ref=body,
+                  reftype="xbody", reduce="maxforce", num=num)
 
 
 def add(spec: mujoco.MjSpec, sensor: Sensor) -> None:
@@ -70,12 +117,15 @@ def add(spec: mujoco.MjSpec, sensor: Sensor) -> None:
         spec.add_sensor(name=sensor.name, type=kind, objtype=mujoco.mjtObj.mjOBJ_SITE,
                         objname=site)
     elif sensor.kind == "contact":
+        fields = sum(1 << int(_CONTACT_FIELDS[f]) for f in sensor.fields)
+        ref = ({} if sensor.ref is None else
+               {"reftype": _OBJTYPES[sensor.reftype], "refname": sensor.ref})
         spec.add_sensor(name=sensor.name, type=mujoco.mjtSensor.mjSENS_CONTACT,
-                        objtype=mujoco.mjtObj.mjOBJ_BODY, objname=sensor.target,
-                        intprm=[_CONTACT_FORCE, _NETFORCE, 1])
-    elif sensor.kind == "jointactuatorfrc":
-        spec.add_sensor(name=sensor.name, type=mujoco.mjtSensor.mjSENS_JOINTACTFRC,
-                        objtype=mujoco.mjtObj.mjOBJ_JOINT, objname=sensor.target)
+                        objtype=_OBJTYPES[sensor.objtype], objname=sensor.target,
+                        intprm=[fields, _REDUCE[sensor.reduce], sensor.num], **ref)
+    elif sensor.kind in _PLAIN:
+        spec.add_sensor(name=sensor.name, type=_PLAIN[sensor.kind],
+                        objtype=_OBJTYPES[sensor.objtype], objname=sensor.target)
     else:
         raise ValueError(f"unknown sensor kind {sensor.kind!r}")
 
