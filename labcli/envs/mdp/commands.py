@@ -14,6 +14,9 @@ from labcli.envs.mdp.events import Uniform
 if TYPE_CHECKING:
     from labcli.envs.mdp.task import RobotTask
 
+# A forward-only command's least forward speed (m/s), mjlab's.
+FORWARD_MIN_SPEED = 0.3
+
 
 class UniformVelocityCommand:
     """`command` `[n, 3]`: lin x, lin y (m/s) and yaw rate (rad/s) in the base's frame.
@@ -32,8 +35,14 @@ class UniformVelocityCommand:
         self.time_left = like.new_zeros(n)
         self.heading_env = torch.zeros(n, dtype=torch.bool, device=like.device)
         self.standing_env = torch.zeros_like(self.heading_env)
+        self.forward_env = torch.zeros_like(self.heading_env)
+        # The forward-only draw is made only where some envs may be: a task without them draws
+        # the numbers it always drew.
+        self.forwards = cfg.rel_forward_envs > 0.0
         self.draw = Uniform(task, [cfg.lin_vel_x, cfg.lin_vel_y, cfg.ang_vel_z, cfg.heading,
-                                   cfg.resampling_time_range, (0.0, 1.0), (0.0, 1.0)])
+                                   cfg.resampling_time_range, (0.0, 1.0), (0.0, 1.0),
+                                   *([(0.0, 1.0)] if self.forwards else [])])
+        self._forward = like.new_zeros(n, 3)  # lin x set at each draw; lin y, yaw rate 0
         # Per-episode sums of the tracking errors, the steps they sum, and their means (once
         # per step: success and the logged metrics read them).
         self.errors = like.new_zeros(n, 2)
@@ -95,6 +104,12 @@ class UniformVelocityCommand:
                     out=self.heading_env)
         torch.where(mask, drawn[:, 6] <= cfg.rel_standing_envs, self.standing_env,
                     out=self.standing_env)
+        if self.forwards:  # mjlab's forward-only envs: |lin x|, at least 0.3 m/s, straight on
+            torch.where(mask, drawn[:, 7] <= cfg.rel_forward_envs, self.forward_env,
+                        out=self.forward_env)
+            torch.clamp(self._lin_xy[:, 0].abs(), min=FORWARD_MIN_SPEED, out=self._forward[:, 0])
+            torch.where((mask & self.forward_env)[:, None], self._forward, self.command,
+                        out=self.command)
 
     def _steer(self, yaw: torch.Tensor) -> None:
         """The heading envs' yaw rate toward their heading, from the root's `yaw`; the standing
