@@ -3,14 +3,18 @@ returning `[num_envs]`, or a class made once per task. Names follow Isaac Lab's 
 
 from __future__ import annotations
 
+import re
 from typing import TYPE_CHECKING
 
 import mujoco
 import torch
 
 from labcli.envs.mdp import config as c
-from labcli.envs.mdp import sensors
+from labcli.envs.mdp import names, sensors
+from labcli.envs.mdp.feet import FootContacts, FootSites, paired_sites, site_names
 from labcli.envs.mdp.observations import distance_to_target, heading_projection
+from labcli.envs.mdp.robot import Robot
+from labcli.errors import LabError
 
 if TYPE_CHECKING:
     from labcli.envs.mdp.task import RobotTask
@@ -173,3 +177,263 @@ class undesired_contacts:  # noqa: N801
 
     def __call__(self) -> torch.Tensor:
         return self.contacts().sum(dim=1).to(self.dtype)
+
+
+# mjlab's velocity task, as its G1 uses it ----------------------------------------------------
+def command_speed(task: RobotTask, command) -> torch.Tensor:
+    """|command lin xy| + |command yaw rate| `[n]`, once per state: how much a velocity command
+    asks, by which mjlab's terms choose a posture's tolerance and gate the foot terms."""
+    return task.robot.per_state(("command_speed", command), lambda: (
+        torch.linalg.vector_norm(command.command[:, :2], dim=1).add_(command.command[:, 2].abs())))
+
+
+def command_active(task: RobotTask, command, threshold: float) -> torch.Tensor:
+    """1 where the command asks more than `threshold` (`command_speed`), else 0, `[n]`."""
+    return task.robot.per_state(("command_active", command, threshold), lambda: (
+        (command_speed(task, command) > threshold).to(task.ones.dtype)))
+
+
+def _body(model: mujoco.MjModel, body: str | None) -> str:
+    """`body`, checked; None: the root (the first body with a free joint)."""
+    if body is None:
+        return names.all_names(model, "body")[int(model.jnt_bodyid[Robot._root_joint(model, None)])]
+    names.resolve_one(model, "body", body)
+    return body
+
+
+class track_linear_velocity:  # noqa: N801
+    def __init__(self, task: RobotTask, cfg: c.TrackLinearVelocity):
+        self.command = task.command(cfg.command)
+        self.vel_z = task.robot.root_lin_vel_b[:, 2]
+        self.inv_var = 1.0 / cfg.std**2
+
+    def __call__(self) -> torch.Tensor:
+        error = self.command.lin_vel_error().square().sum(dim=1).add_(self.vel_z.square())
+        return torch.exp(error.mul_(-self.inv_var))
+
+
+class track_angular_velocity:  # noqa: N801
+    def __init__(self, task: RobotTask, cfg: c.TrackAngularVelocity):
+        self.command = task.command(cfg.command)
+        self.ang_vel_xy = task.robot.root_ang_vel_b[:, :2]
+        self.inv_var = 1.0 / cfg.std**2
+
+    def __call__(self) -> torch.Tensor:
+        error = self.ang_vel_xy.square().sum(dim=1).add_(self.command.yaw_rate_error().square())
+        return torch.exp(error.mul_(-self.inv_var))
+
+
+def _axes(body: str) -> list[sensors.Sensor]:
+    return [sensors.frame("framexaxis", "xbody", body), sensors.frame("frameyaxis", "xbody", body)]
+
+
+class upright:  # noqa: N801
+    """Gravity's direction in a body's frame is -(R20, R21, R22) (R: the body's rotation): its
+    xy are minus the world z of the body's x and y axes, read from framexaxis and frameyaxis
+    sensors (the root's from the robot's own)."""
+
+    def __init__(self, task: RobotTask, cfg: c.UprightExp):
+        self.inv_var = 1.0 / cfg.std**2
+        if cfg.body is None:
+            self.gravity_xy = lambda: task.robot.projected_gravity_b[:, :2]
+        else:
+            axes = sensors.columns(task, [[s.name] for s in _axes(cfg.body)])
+            self.gravity_xy = lambda: axes().view(-1, 2, 3)[:, :, 2]
+
+    @staticmethod
+    def sensors(model: mujoco.MjModel, cfg: c.UprightExp) -> list[sensors.Sensor]:
+        return [] if cfg.body is None else _axes(_body(model, cfg.body))
+
+    def __call__(self) -> torch.Tensor:
+        return torch.exp(self.gravity_xy().square().sum(dim=1).mul_(-self.inv_var))
+
+
+def _per_joint(joints: list[str], stds: dict[str, float], field: str) -> list[float]:
+    """Each joint's std, by the first pattern matching its whole name."""
+    values = []
+    for joint in joints:
+        std = next((v for p, v in stds.items() if re.fullmatch(p, joint)), None)
+        if std is None:
+            raise LabError(f"joint '{joint}' matches none of {field}'s patterns "
+                           f"({', '.join(repr(p) for p in stds)})",
+                           f"give {field} a pattern for it ('.*' last matches every joint)")
+        values.append(std)
+    return values
+
+
+class variable_posture:  # noqa: N801
+    """mean(((q - q0) / std)^2) as sum((q - q0)^2 w), w = 1 / (joints x std^2) per regime,
+    chosen per env by where: no host sync, no branch on the command."""
+
+    def __init__(self, task: RobotTask, cfg: c.VariablePosture):
+        r = self.robot = task.robot
+        self.task, self.cfg, self.command = task, cfg, task.command(cfg.command)
+        k = len(r.joint_names)
+
+        def weights(field: str) -> torch.Tensor:
+            stds = _per_joint(r.joint_names, getattr(cfg, field), field)
+            return task.tiled([1.0 / (k * std**2) for std in stds])
+
+        self.standing, self.walking, self.running = (
+            weights("std_standing"), weights("std_walking"), weights("std_running"))
+        self._w = torch.empty_like(self.standing)
+        self._error = torch.empty_like(self.standing)
+
+    def __call__(self) -> torch.Tensor:
+        cfg, r, w = self.cfg, self.robot, self._w
+        speed = command_speed(self.task, self.command)[:, None]
+        torch.where(speed >= cfg.running_threshold, self.running, self.walking, out=w)
+        torch.where(speed < cfg.walking_threshold, self.standing, w, out=w)
+        error = torch.sub(r.joint_pos, r.default_joint_pos, out=self._error)
+        return torch.exp(error.square_().mul_(w).sum(dim=1).neg_())
+
+
+class body_angular_velocity_penalty:  # noqa: N801
+    def __init__(self, task: RobotTask, cfg: c.BodyAngVelXYL2):
+        self.ang_vel = sensors.columns(task, [[sensors.frame("frameangvel", "xbody",
+                                                             cfg.body).name]])
+
+    @staticmethod
+    def sensors(model: mujoco.MjModel, cfg: c.BodyAngVelXYL2) -> list[sensors.Sensor]:
+        return [sensors.frame("frameangvel", "xbody", _body(model, cfg.body))]
+
+    def __call__(self) -> torch.Tensor:
+        return self.ang_vel()[:, :2].square().sum(dim=1)
+
+
+class angular_momentum_penalty:  # noqa: N801
+    def __init__(self, task: RobotTask, cfg: c.AngularMomentumL2):
+        self.momentum = sensors.columns(task, [[sensors.subtree_angmom(
+            _body(task.model, None)).name]])
+
+    @staticmethod
+    def sensors(model: mujoco.MjModel, cfg: c.AngularMomentumL2) -> list[sensors.Sensor]:
+        return [sensors.subtree_angmom(_body(model, None))]
+
+    def __call__(self) -> torch.Tensor:
+        return self.momentum().square().sum(dim=1)
+
+
+class joint_pos_limits:  # noqa: N801
+    """Soft limits as mjlab's: the middle of the range -/+ half of it times the factor; an
+    unlimited joint's are -/+ infinity."""
+
+    def __init__(self, task: RobotTask, cfg: c.SoftJointPosLimits):
+        model, ids = task.model, task.robot.joint_ids
+        inf = float("inf")
+        lower, upper = [], []
+        for j in ids:
+            low, high = (float(v) for v in model.jnt_range[j])
+            middle, half = (low + high) / 2, (high - low) / 2 * cfg.soft_factor
+            limited = bool(model.jnt_limited[j])
+            lower.append(middle - half if limited else -inf)
+            upper.append(middle + half if limited else inf)
+        self.robot, self.lower, self.upper = task.robot, task.tiled(lower), task.tiled(upper)
+        self._below = torch.empty_like(self.lower)
+        self._above = torch.empty_like(self.lower)
+
+    def __call__(self) -> torch.Tensor:
+        q = self.robot.joint_pos
+        below = torch.sub(self.lower, q, out=self._below).clamp_min_(0.0)
+        above = torch.sub(q, self.upper, out=self._above).clamp_min_(0.0)
+        return below.add_(above).sum(dim=1)
+
+
+class feet_clearance:  # noqa: N801
+    def __init__(self, task: RobotTask, cfg: c.FeetClearance):
+        self.task, self.cfg, self.command = task, cfg, task.command(cfg.command)
+        self.sites = FootSites.of(task, site_names(task.model, cfg.sites))
+
+    @staticmethod
+    def sensors(model: mujoco.MjModel, cfg: c.FeetClearance) -> list[sensors.Sensor]:
+        return FootSites.sensors(model, site_names(model, cfg.sites))
+
+    def __call__(self) -> torch.Tensor:
+        cost = (self.sites.heights() - self.cfg.target_height).abs_().mul_(self.sites.speed_xy())
+        return cost.sum(dim=1).mul_(command_active(self.task, self.command,
+                                                   self.cfg.command_threshold))
+
+
+def _feet_sensors(model: mujoco.MjModel, cfg: c.FeetSwingHeight | c.FeetSlip
+                  ) -> list[sensors.Sensor]:
+    bodies = sensors.body_names(model, cfg.bodies)
+    return [*FootContacts.sensors(model, bodies),
+            *FootSites.sensors(model, paired_sites(model, bodies, cfg.sites))]
+
+
+class _FootTerm:
+    """The feet's contacts and, with `sites`, one site on each foot in the same order."""
+
+    def __init__(self, task: RobotTask, cfg: c.FootContactTerm):
+        self.task, self.cfg, self.command = task, cfg, task.command(cfg.command)
+        self.contacts = FootContacts.of(task, cfg.bodies)
+        sites = getattr(cfg, "sites", None)
+        if sites is not None:
+            self.sites = FootSites.of(task, paired_sites(task.model, self.contacts.bodies, sites))
+
+    def active(self) -> torch.Tensor:
+        return command_active(self.task, self.command, self.cfg.command_threshold)
+
+
+class feet_swing_height(_FootTerm):  # noqa: N801
+    """Each foot's peak height in the air, at the ends of steps: the peak so far and this
+    step's where it is in the air (`peak_now`, once per state), kept by `after_step` and
+    cleared where the foot lands and at reset."""
+
+    def __init__(self, task: RobotTask, cfg: c.FeetSwingHeight):
+        super().__init__(task, cfg)
+        self.peak = task.ones.new_zeros(task.num_envs, len(self.contacts.bodies))
+        self.inv_target = 1.0 / cfg.target_height
+
+    sensors = staticmethod(_feet_sensors)
+
+    def peak_now(self) -> torch.Tensor:
+        return self.task.robot.per_state(("feet_swing_peak", self), lambda: torch.where(
+            self.contacts.touching(), self.peak, torch.maximum(self.peak, self.sites.heights())))
+
+    def __call__(self) -> torch.Tensor:
+        error = (self.peak_now() * self.inv_target - 1.0).square_()
+        cost = error.mul_(self.contacts.first_contact()).sum(dim=1)
+        return cost.mul_(self.active())
+
+    def after_step(self) -> None:
+        self.peak.copy_(self.peak_now()).masked_fill_(self.contacts.first_contact(), 0.0)
+
+    def reset(self, mask: torch.Tensor) -> None:
+        self.peak.masked_fill_(mask[:, None], 0.0)
+
+
+class feet_slip(_FootTerm):  # noqa: N801
+    sensors = staticmethod(_feet_sensors)
+
+    def __call__(self) -> torch.Tensor:
+        slip = self.sites.speed_xy().square().mul_(self.contacts.touching())
+        return slip.sum(dim=1).mul_(self.active())
+
+
+class soft_landing(_FootTerm):  # noqa: N801
+    @staticmethod
+    def sensors(model: mujoco.MjModel, cfg: c.SoftLanding) -> list[sensors.Sensor]:
+        return FootContacts.sensors(model, cfg.bodies)
+
+    def __call__(self) -> torch.Tensor:
+        impact = self.contacts.force_norm() * self.contacts.first_contact()
+        return impact.sum(dim=1).mul_(self.active())
+
+
+class self_collision_cost:  # noqa: N801
+    """The self-contacts' forces, largest first, counted over the threshold."""
+
+    def __init__(self, task: RobotTask, cfg: c.SelfCollisions):
+        sensor = sensors.self_contacts(_body(task.model, cfg.body), cfg.max_contacts)
+        self.forces = sensors.columns(task, [[sensor.name]])
+        self.shape, self.threshold = (task.num_envs, cfg.max_contacts, 3), cfg.force_threshold
+        self.dtype = task.ones.dtype
+
+    @staticmethod
+    def sensors(model: mujoco.MjModel, cfg: c.SelfCollisions) -> list[sensors.Sensor]:
+        return [sensors.self_contacts(_body(model, cfg.body), cfg.max_contacts)]
+
+    def __call__(self) -> torch.Tensor:
+        force = torch.linalg.vector_norm(self.forces().view(self.shape), dim=2)
+        return (force > self.threshold).sum(dim=1).to(self.dtype)
