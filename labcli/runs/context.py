@@ -219,10 +219,13 @@ class RunContext(TrainContext):
     def _note_overflows(self, stats: Mapping[str, float]) -> None:
         overflows = sorted(k.removeprefix(metrics.OVERFLOW) for k in stats
                            if k.startswith(metrics.OVERFLOW))
-        if overflows and not self._told_overflows:
+        # A solver out of iterations kept its last iterate (counted only); a buffer that
+        # overflowed lost contacts or constraints (those envs are reset).
+        buffers = [k for k in overflows if "ITERATIONS" not in k]
+        if buffers and not self._told_overflows:
             self._told_overflows = True
             self.progress.console.print(
-                f"note: MuJoCo Warp's {', '.join(overflows)} buffer overflowed; the envs "
+                f"note: MuJoCo Warp's {', '.join(buffers)} buffer overflowed; the envs "
                 f"concerned are reset and counted ({metrics.OVERFLOW}<buffer>): raise "
                 "env.nconmax or env.njmax", highlight=False, soft_wrap=True)
 

@@ -122,6 +122,12 @@ class WarpSim(Sim):
         self._overflow_bits = torch.tensor([k.value for k in kinds], device=self.device)
         self._overflow_counts = torch.zeros(len(kinds), dtype=torch.float64, device=self.device)
         self._overflowed = torch.zeros(num_envs, dtype=torch.bool, device=self.device)
+        # A buffer that overflowed lost contacts or constraints: that env's state is wrong. A
+        # solver that ran out of iterations left its last iterate, as MuJoCo does on the CPU:
+        # counted (sim/overflow/ITERATIONS), not an instability.
+        self._corrupting = sum(k.value for k in kinds if "ITERATIONS" not in k.name)
+        if hasattr(self._m.opt, "warn_overflow"):  # lab counts them: no line per step
+            self._m.opt.warn_overflow = 0
 
         self._graphs: dict[object, wp.Graph | None] = {}
         self._streams: dict[int, wp.Stream] = {}
@@ -147,7 +153,7 @@ class WarpSim(Sim):
             flags = self._overflow
             hit = (flags[:, None] & self._overflow_bits).ne(0)
             self._overflow_counts += hit.sum(dim=0)
-            torch.ne(flags, 0, out=self._overflowed)
+            torch.ne(flags & self._corrupting, 0, out=self._overflowed)
             flags.zero_()
 
     def unstable(self) -> torch.Tensor:
