@@ -88,3 +88,22 @@ def test_the_video_wrapper_must_come_before_the_adapter():
 def test_bad_video_settings(length, interval):
     with pytest.raises(LabError, match="--video-"):
         video.VideoSettings(length, interval)
+
+
+def test_without_imageio_ffmpeg_a_video_is_refused_before_any_work(monkeypatch, tmp_path):
+    """imageio would otherwise write the .mp4 with another format's writer and fail only when
+    the first video ends (a traceback, after the training or play it recorded)."""
+    import importlib.util
+
+    from labcli.envs.render.video import VideoRecorder
+    from labcli.gym import make_env
+
+    real = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec",
+                        lambda name, *a: None if name == "imageio_ffmpeg" else real(name, *a))
+    env = make_env("cartpole", num_envs=2)
+    with pytest.raises(LabError) as err:
+        VideoRecorder(env, tmp_path)
+    env.close()
+    assert err.value.message == "writing mp4 videos needs imageio-ffmpeg, which is not installed"
+    assert not list(tmp_path.iterdir())

@@ -3,6 +3,7 @@ registered as the wrapper `video` (labcli/plugins/builtin.py)."""
 
 from __future__ import annotations
 
+import importlib.util
 from pathlib import Path
 from typing import Any
 
@@ -10,6 +11,7 @@ import gymnasium as gym
 import numpy as np
 
 from labcli import files
+from labcli.errors import LabError
 
 
 class VideoRecorder(gym.vector.VectorWrapper):
@@ -18,6 +20,11 @@ class VideoRecorder(gym.vector.VectorWrapper):
 
     def __init__(self, env: gym.vector.VectorEnv, folder: Path, length: int = 200,
                  interval: int | None = 2000, fps: float | None = None):
+        # imageio writes mp4 through imageio-ffmpeg; without it, it would pick another format's
+        # writer and fail at the first video's end: said before any work.
+        if importlib.util.find_spec("imageio_ffmpeg") is None:
+            raise LabError("writing mp4 videos needs imageio-ffmpeg, which is not installed",
+                           "pip install imageio-ffmpeg, or leave out --video")
         super().__init__(env)
         self.folder, self.length, self.interval = Path(folder), length, interval
         self.fps = fps or 1.0 / env.unwrapped.step_dt
