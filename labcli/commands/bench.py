@@ -49,8 +49,9 @@ def bench(
         return
     columns = ["task", "backend", "threads", "envs", "env-steps/s"]
     with_rollout = any(row.rollout_steps_per_s for row in rows)
-    if with_rollout:
-        columns += ["mujoco.rollout", "ratio"]
+    if with_rollout:  # the raw physics of the same model: MuJoCo's rollout, or MuJoCo Warp
+        physics = "mujoco_warp" if rows[0].backend == "warp" else "mujoco.rollout"
+        columns += [physics, "ratio"]
     if framework:
         columns += ["framework", "training steps/s"]
     rows_table = table(*columns, title="lab bench")

@@ -43,7 +43,8 @@ class BenchRow:
     framework: str | None = None
     train_steps_per_s: float | None = None
     threads: int | None = None  # the cpu backend's physics threads
-    # cpu backend: raw `mujoco.rollout` of the same model and decimation in the same run
+    # raw physics of the same model and decimation in the same run: `mujoco.rollout` (cpu
+    # backend) or MuJoCo Warp's step (warp)
     rollout_steps_per_s: float | None = None
     ratio_to_rollout: float | None = None
 
@@ -88,6 +89,21 @@ def env_rate(env: LabVecEnv | ShardedVecEnv, seconds: float, banked: int = 16) -
     sync = torch.cuda.synchronize if env.device.type == "cuda" else (lambda: None)
     with one_torch_thread(str(env.device)):
         return rate(env_stepper(env, banked), seconds, sync)
+
+
+def physics_rate(env: LabVecEnv, seconds: float) -> float:
+    """The limit of the warp backend: env-steps/s of MuJoCo Warp's own step of what `env`
+    steps (its model and batched data, `decimation` physics steps per env step, replayed as the
+    env replays it, as a CUDA graph), from the env's current states with its last controls held,
+    no task code."""
+    sim = env.unwrapped.sim
+    n, nstep = sim.num_envs, env.unwrapped.cfg.decimation
+
+    def step() -> int:
+        sim.step(nstep)
+        return n
+
+    return rate(step, seconds, torch.cuda.synchronize)
 
 
 @contextlib.contextmanager
@@ -224,7 +240,10 @@ def bench(task: str, num_envs: Sequence[int], *, backend: str | None = None,
                 finally:
                     reference.close()
             else:
-                row = BenchRow(task, env.backend, cfg.num_envs, env_rate(env, seconds))
+                lab = env_rate(env, seconds)
+                raw = physics_rate(env, seconds)
+                row = BenchRow(task, env.backend, cfg.num_envs, lab,
+                               rollout_steps_per_s=raw, ratio_to_rollout=lab / raw)
         finally:
             env.close()
         if framework is not None:
