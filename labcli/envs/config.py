@@ -28,6 +28,10 @@ class TaskConfig(BaseModel):
     episode_length_s: float = Field(5.0, gt=0, le=1e6, description="time-out, in seconds")
     decimation: int = Field(2, gt=0, le=1000, description="physics steps per env step")
     sim_dt: float | None = Field(None, gt=0, description="physics step; None keeps the MJCF's")
+    solver_iterations: int | None = Field(None, gt=0, le=1000, description="the constraint "
+                                          "solver's iterations; None keeps the MJCF's")
+    ls_iterations: int | None = Field(None, gt=0, le=1000, description="its line search's "
+                                      "iterations; None keeps the MJCF's")
     action_scale: float = Field(1.0, description="policy action in [-1, 1] times this is ctrl")
     clip_actions: float = Field(1.0, gt=0, description="actions are clipped to ±this before "
                                 "the task turns them into controls: the env's action space")

@@ -359,7 +359,9 @@ class LabVecEnv(gym.vector.VectorEnv):
 
     def _scene(self) -> SceneRenderer:
         if self._renderer is None:
-            self._renderer = SceneRenderer(self.sim.model)
+            # The model with its visual meshes: the sim's has only what its physics needs.
+            self._renderer = SceneRenderer(self.task_spec.task_class.build_model(
+                self.cfg, self.task_spec.model, visual=True))
         return self._renderer
 
     def describe(self) -> dict[str, Any]:

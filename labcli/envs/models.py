@@ -46,6 +46,44 @@ def load_spec(source: ModelSource) -> mujoco.MjSpec:
         raise LabError(f"the model {path} does not load: {first_line(exc)}", hint) from None
 
 
+def set_options(model: mujoco.MjModel, cfg: Any) -> None:
+    """The config's physics options, where it sets them, over the MJCF's: the step
+    (`sim_dt`), the solver's and its line search's iterations."""
+    for key, field in (("sim_dt", "timestep"), ("solver_iterations", "iterations"),
+                       ("ls_iterations", "ls_iterations")):
+        value = getattr(cfg, key, None)
+        if value is not None:
+            setattr(model.opt, field, value)
+
+
+def drop_visual_meshes(spec: mujoco.MjSpec) -> None:
+    """Make the model's visual-only mesh geoms (no collisions, no contact pair, no part in
+    their body's inertia) tiny spheres, delete the meshes no geom uses any more and the
+    textures: the physics
+    is the same, the model a fraction of the size (Menagerie's G1: 72 MiB with its meshes), which
+    counts where every env has its own copy (the cpu backend's per-env fields). Geoms keep their
+    ids, so a renderer's model with the meshes shows the same state."""
+    import mujoco
+
+    paired = {name for pair in spec.pairs for name in (pair.geomname1, pair.geomname2)}
+    for geom in spec.geoms:
+        body = geom.parent
+        if (geom.type == mujoco.mjtGeom.mjGEOM_MESH and geom.contype == 0
+                and geom.conaffinity == 0 and geom.name not in paired
+                and (geom.density == 0 or getattr(body, "explicitinertial", False))):
+            geom.type, geom.meshname = mujoco.mjtGeom.mjGEOM_SPHERE, ""
+            geom.size = [1e-3, 0.0, 0.0]
+    used = {geom.meshname for geom in spec.geoms if geom.type == mujoco.mjtGeom.mjGEOM_MESH}
+    for mesh in list(spec.meshes):
+        if mesh.name not in used:
+            spec.delete(mesh)
+    # Textures (a skybox: 4.7 MB) are only ever drawn.
+    for material in spec.materials:
+        material.textures = [""] * len(material.textures)
+    for texture in list(spec.textures):
+        spec.delete(texture)
+
+
 def menagerie_xml(source: Menagerie) -> Path:
     """The entry point's MJCF on disk, the robot's folder downloaded first if need be (with its
     progress on stderr)."""

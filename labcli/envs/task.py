@@ -42,13 +42,17 @@ class Task:
         self.sim = sim
 
     @classmethod
-    def build_model(cls, cfg: TaskConfig, source: ModelSource) -> mujoco.MjModel:
+    def build_model(cls, cfg: TaskConfig, source: ModelSource,
+                    visual: bool = False) -> mujoco.MjModel:
         """The MjModel this task steps, from the spec's model (an MJCF file or a Menagerie
         robot): a task may edit its `mujoco.MjSpec` first (add the sensors its terms read).
-        `cfg.sim_dt`, where set, is the physics step."""
-        model = models.load_spec(source).compile()
-        if cfg.sim_dt is not None:
-            model.opt.timestep = cfg.sim_dt
+        `cfg.sim_dt`, where set, is the physics step. Without `visual`, the physics only
+        (`models.drop_visual_meshes`); with it, for rendering."""
+        spec = models.load_spec(source)
+        if not visual:
+            models.drop_visual_meshes(spec)
+        model = spec.compile()
+        models.set_options(model, cfg)
         return model
 
     @classmethod

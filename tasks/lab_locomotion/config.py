@@ -12,6 +12,7 @@ from typing import Any, ClassVar
 from pydantic import Field
 
 from lab_locomotion.g1 import ROBOT as G1
+from lab_locomotion.go1 import ROBOT as GO1
 from labcli.envs.mdp import config as c
 from labcli.envs.mdp.description import RobotDescription
 
@@ -123,7 +124,8 @@ class Go1FlatRewards(c.Group):
     dof_torques_l2: c.JointTorquesL2 | None = c.JointTorquesL2(weight=-2e-4)
     dof_acc_l2: c.JointAccL2 | None = c.JointAccL2(weight=-2.5e-7)
     action_rate_l2: c.ActionRateL2 | None = c.ActionRateL2(weight=-0.01)
-    feet_air_time: c.FeetAirTime | None = c.FeetAirTime(weight=0.25, bodies=[".*_foot"],
+    # Menagerie's Go1 has each foot as a sphere on its calf: the calves' contacts are the feet's.
+    feet_air_time: c.FeetAirTime | None = c.FeetAirTime(weight=0.25, bodies=[".*_calf"],
                                                           threshold_s=0.5)
     # Isaac Lab's Go1 leaves undesired (thigh) contacts out: --set it to turn it on.
     undesired_contacts: c.UndesiredContacts | None = None
@@ -154,9 +156,11 @@ class Go1FlatConfig(c.RobotTaskConfig):
     # Isaac Lab's _PLAY config: no noise, no pushes.
     play_overrides: ClassVar[dict[str, Any]] = {**c.RobotTaskConfig.play_overrides,
                                                 "events": {"push_robot": None}}
+    robot: RobotDescription | None = GO1
     num_envs: int = Field(256, gt=0, le=2**20, description="parallel environments")
     episode_length_s: float = Field(20.0, gt=0, le=1e6, description="time-out, in seconds")
     decimation: int = Field(4, gt=0, le=1000, description="physics steps per env step")
+    sim_dt: float | None = Field(0.005, gt=0, description="physics step")
     nconmax: int | None = 16
     njmax: int | None = 72
     actions: c.JointPosition = c.JointPosition(scale=0.25)
@@ -179,8 +183,8 @@ class Go1FlatConfig(c.RobotTaskConfig):
 class G1Commands(c.Group):
     base_velocity: c.UniformVelocityCommand | None = c.UniformVelocityCommand(
         resampling_time_range=(3.0, 8.0), rel_standing_envs=0.1, rel_heading_envs=0.3,
-        heading_command=True, heading_control_stiffness=0.5, lin_vel_x=(-1.0, 1.0),
-        lin_vel_y=(-1.0, 1.0), ang_vel_z=(-0.5, 0.5))
+        rel_forward_envs=0.2, heading_command=True, heading_control_stiffness=0.5,
+        lin_vel_x=(-1.0, 1.0), lin_vel_y=(-1.0, 1.0), ang_vel_z=(-0.5, 0.5))
 
 
 class G1Observations(c.Group):
@@ -193,11 +197,45 @@ class G1Observations(c.Group):
     velocity_commands: c.GeneratedCommands | None = c.GeneratedCommands()
 
 
+FEET = ["left_ankle_roll_link", "right_ankle_roll_link"]
+SOLES = ["left_foot", "right_foot"]
+# mjlab's per-joint posture tolerances (rad), loosest where the gait needs motion: hips and
+# knees, then ankle pitch; tight ankle roll and waist roll/pitch for balance.
+STD_WALKING = {".*hip_pitch.*": 0.3, ".*hip_roll.*": 0.15, ".*hip_yaw.*": 0.15, ".*knee.*": 0.35,
+               ".*ankle_pitch.*": 0.25, ".*ankle_roll.*": 0.1, ".*waist_yaw.*": 0.2,
+               ".*waist_roll.*": 0.08, ".*waist_pitch.*": 0.1, ".*shoulder_pitch.*": 0.15,
+               ".*shoulder_roll.*": 0.15, ".*shoulder_yaw.*": 0.1, ".*elbow.*": 0.15,
+               ".*wrist.*": 0.3}
+STD_RUNNING = {".*hip_pitch.*": 0.5, ".*hip_roll.*": 0.2, ".*hip_yaw.*": 0.2, ".*knee.*": 0.6,
+               ".*ankle_pitch.*": 0.35, ".*ankle_roll.*": 0.15, ".*waist_yaw.*": 0.3,
+               ".*waist_roll.*": 0.08, ".*waist_pitch.*": 0.2, ".*shoulder_pitch.*": 0.5,
+               ".*shoulder_roll.*": 0.2, ".*shoulder_yaw.*": 0.15, ".*elbow.*": 0.35,
+               ".*wrist.*": 0.3}
+
+
 class G1Rewards(c.Group):
-    track_lin_vel_xy_exp: c.TrackLinVelXYExp | None = c.TrackLinVelXYExp(weight=2.0, std=0.5)
-    track_ang_vel_z_exp: c.TrackAngVelZExp | None = c.TrackAngVelZExp(weight=2.0,
-                                                                      std=0.5**0.5)
+    track_linear_velocity: c.TrackLinearVelocity | None = c.TrackLinearVelocity(
+        weight=2.0, std=0.5)
+    track_angular_velocity: c.TrackAngularVelocity | None = c.TrackAngularVelocity(
+        weight=2.0, std=math.sqrt(0.5))
+    upright: c.UprightExp | None = c.UprightExp(weight=1.0, std=math.sqrt(0.2),
+                                                 body="torso_link")
+    pose: c.VariablePosture | None = c.VariablePosture(
+        weight=1.0, std_standing={".*": 0.05}, std_walking=STD_WALKING,
+        std_running=STD_RUNNING, walking_threshold=0.05, running_threshold=1.5)
+    body_ang_vel: c.BodyAngVelXYL2 | None = c.BodyAngVelXYL2(weight=-0.05, body="torso_link")
+    angular_momentum: c.AngularMomentumL2 | None = c.AngularMomentumL2(weight=-0.02)
+    dof_pos_limits: c.SoftJointPosLimits | None = c.SoftJointPosLimits(weight=-1.0)
     action_rate_l2: c.ActionRateL2 | None = c.ActionRateL2(weight=-0.1)
+    # mjlab's G1 sets its feet-air-time weight to 0: left out.
+    foot_clearance: c.FeetClearance | None = c.FeetClearance(weight=-2.0, sites=SOLES,
+                                                             target_height=0.1)
+    foot_swing_height: c.FeetSwingHeight | None = c.FeetSwingHeight(
+        weight=-0.25, bodies=FEET, sites=SOLES, target_height=0.1)
+    foot_slip: c.FeetSlip | None = c.FeetSlip(weight=-0.1, bodies=FEET, sites=SOLES)
+    soft_landing: c.SoftLanding | None = c.SoftLanding(weight=-1e-5, bodies=FEET)
+    self_collisions: c.SelfCollisions | None = c.SelfCollisions(weight=-1.0,
+                                                                force_threshold=10.0)
 
 
 class G1Terminations(c.Group):
@@ -205,8 +243,8 @@ class G1Terminations(c.Group):
 
 
 class G1Events(c.Group):
-    foot_friction: c.RandomizeFriction | None = c.RandomizeFriction(
-        bodies=["left_ankle_roll_link", "right_ankle_roll_link"], friction_range=(0.3, 1.2))
+    foot_friction: c.RandomizeFriction | None = c.RandomizeFriction(bodies=FEET,
+                                                                    friction_range=(0.3, 1.2))
     base_com: c.RandomizeCom | None = c.RandomizeCom(
         bodies=["torso_link"],
         com_range={"x": (-0.025, 0.025), "y": (-0.025, 0.025), "z": (-0.03, 0.03)})
@@ -228,7 +266,10 @@ class G1FlatConfig(c.RobotTaskConfig):
     episode_length_s: float = Field(20.0, gt=0, le=1e6, description="time-out, in seconds")
     decimation: int = Field(4, gt=0, le=1000, description="physics steps per env step")
     sim_dt: float | None = Field(0.005, gt=0, description="physics step")
-    nconmax: int | None = 40
+    # mjlab's solver settings (Menagerie's scene_mjx has 5 and 8).
+    solver_iterations: int | None = Field(10, gt=0, le=1000)
+    ls_iterations: int | None = Field(20, gt=0, le=1000)
+    nconmax: int | None = 35
     njmax: int | None = 300
     actions: c.JointPosition = c.JointPosition(scale=None)
     clip_actions: float = 100.0

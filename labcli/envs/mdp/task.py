@@ -79,8 +79,11 @@ class RobotTask(Task):
     cfg: RobotTaskConfig
 
     @classmethod
-    def build_model(cls, cfg: RobotTaskConfig, source: ModelSource) -> mujoco.MjModel:  # type: ignore[override]
+    def build_model(cls, cfg: RobotTaskConfig, source: ModelSource,  # type: ignore[override]
+                    visual: bool = False) -> mujoco.MjModel:
         spec = models.load_spec(source)
+        if not visual:
+            models.drop_visual_meshes(spec)
         if cfg.robot is not None:
             robot_model.apply(spec, cfg.robot)
         model = spec.compile()
@@ -90,8 +93,7 @@ class RobotTask(Task):
             for sensor in needed:
                 sensors.add(spec, sensor)
             model = spec.compile()
-        if cfg.sim_dt is not None:
-            model.opt.timestep = cfg.sim_dt
+        models.set_options(model, cfg)
         return model
 
     @classmethod
