@@ -1,5 +1,5 @@
 """Velocity commands, the contact terms built on them, and the go1-flat task: terms against
-hand-computed cases on MuJoCo Menagerie's Go1 at small sizes."""
+hand-computed cases on the real Go1 model at small sizes."""
 
 from __future__ import annotations
 
@@ -11,9 +11,9 @@ import mujoco
 import pytest
 import torch
 from backends import lift_and_copy, worst_gaps
-from conftest import needs_menagerie
-from lab_locomotion import go1 as go1_robot
-from lab_locomotion.config import Go1FlatConfig
+from lab_locomotion import quadruped
+from lab_locomotion.go1 import ROBOT
+from lab_locomotion.plugin import HERE
 from typer.testing import CliRunner
 
 from labcli.commands.app import app
@@ -22,7 +22,7 @@ from labcli.gym import make_env
 from labcli.plugins import registry
 from labcli.runs import config
 
-pytestmark = needs_menagerie("unitree_go1")
+GO1_XML = HERE / "go1.xml"
 DT = 4 * 0.005  # go1-flat: 200 Hz physics, decimation 4
 HAVE_WARP = all(importlib.util.find_spec(m) for m in ("warp", "mujoco_warp"))
 
@@ -48,25 +48,22 @@ def yaw_quat(yaw: float) -> list[float]:
     return [math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2)]
 
 
-def test_menageries_go1_with_its_description_stands_on_its_feet():
-    cfg = Go1FlatConfig()
-    model = registry.get_task("go1-flat").task_class.build_model(cfg, go1_robot.MODEL)
-    assert (model.nu, model.nq, model.opt.timestep) == (12, 19, 0.005)
-    # Unitree's masses as Menagerie has them: a 5.204 kg trunk, 12.7 kg in all.
-    assert model.body_mass[model.body("trunk").id] == pytest.approx(5.204)
-    assert model.body_subtreemass[1] == pytest.approx(12.74, abs=0.05)
+def test_the_go1_mjcf_is_written_from_its_numbers_and_stands_on_its_feet():
+    assert GO1_XML.read_text() == quadruped.mjcf(ROBOT, quadruped.standing_height(ROBOT))
+    model = mujoco.MjModel.from_xml_path(str(GO1_XML))
+    assert (model.nu, model.nq) == (12, 19)
+    # Unitree's published masses: 5.204 kg trunk, 4 legs of 0.68 + 1.009 + 0.196 kg.
+    assert model.body_subtreemass[1] == pytest.approx(5.204 + 4 * (0.68 + 1.009 + 0.196))
     assert model.actuator_forcerange[:, 1].tolist() == [23.7, 23.7, 35.55] * 4
-    hip, knee = (go1_robot.ROTOR_INERTIA * r**2 * (2 * math.pi * 10) ** 2 for r in (6, 9))
-    assert model.actuator_gainprm[:3, 0].tolist() == pytest.approx([hip, hip, knee])
     data = mujoco.MjData(model)
-    mujoco.mj_resetDataKeyframe(model, data, model.key("home").id)
-    data.ctrl[:] = data.qpos[7:]
+    mujoco.mj_resetDataKeyframe(model, data, 0)
     for _ in range(400):  # 2 s holding the standing pose
         mujoco.mj_step(model, data)
-    feet = {model.geom(leg).id for leg in go1_robot.ROBOT.feet}
-    touching = {int(c.geom[i]) for c in data.contact[:data.ncon] for i in (0, 1)}
-    assert touching == feet | {model.geom("floor").id}  # the feet and the floor only
-    assert 0.22 < data.qpos[2] < 0.33 and data.qpos[3] > 0.999  # upright, trunk off the floor
+    feet = [model.body(f"{leg}_foot").id for leg in quadruped.LEGS]
+    touching = {int(model.geom_bodyid[c.geom[i]]) for c in data.contact[:data.ncon]
+                for i in (0, 1)}
+    assert set(feet) <= touching and len(touching - set(feet)) == 1  # the feet and the floor
+    assert 0.25 < data.qpos[2] < 0.33 and data.qpos[3] > 0.999  # upright, trunk off the floor
 
 
 def test_commands_are_drawn_from_their_ranges_standing_envs_get_zero():
@@ -198,16 +195,13 @@ def test_undesired_contacts_count_the_bodies_touching(tmp_path):
 def test_resets_scale_the_joints_shift_the_com_and_add_base_mass():
     env = go1(64)
     r = env.task.robot
-    # Menagerie's standing pose has the hips at 0, which any scale leaves at 0.
-    hips = r.default_joint_pos[0] == 0
-    assert hips.sum() == 4 and (r.joint_pos[:, hips] == 0).all()
-    ratio = r.joint_pos[:, ~hips] / r.default_joint_pos[:, ~hips]
+    ratio = r.joint_pos / r.default_joint_pos
     inside = ((r.joint_pos - r.joint_lower).abs().gt(1e-9)
-              & (r.joint_pos - r.joint_upper).abs().gt(1e-9))[:, ~hips]
+              & (r.joint_pos - r.joint_upper).abs().gt(1e-9))
     # Drawn in (0.5, 1.5) x the default, or clamped at a limit.
     assert ((ratio >= 0.5 - 1e-9) & (ratio <= 1.5 + 1e-9) | ~inside).all()
     assert ratio.std() > 0.1
-    model = env.sim.model
+    model = mujoco.MjModel.from_xml_path(str(GO1_XML))
     com = env.sim.model_field("body_ipos")[:, 1] - torch.as_tensor(model.body_ipos[1])
     assert (com[:, :2].abs() <= 0.05).all() and (com[:, 2].abs() <= 0.01).all()
     assert com[:, 0].std() > 0.01

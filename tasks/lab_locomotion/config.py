@@ -12,7 +12,6 @@ from typing import Any, ClassVar
 from pydantic import Field
 
 from lab_locomotion.g1 import ROBOT as G1
-from lab_locomotion.go1 import ROBOT as GO1
 from labcli.envs.mdp import config as c
 from labcli.envs.mdp.description import RobotDescription
 
@@ -124,8 +123,7 @@ class Go1FlatRewards(c.Group):
     dof_torques_l2: c.JointTorquesL2 | None = c.JointTorquesL2(weight=-2e-4)
     dof_acc_l2: c.JointAccL2 | None = c.JointAccL2(weight=-2.5e-7)
     action_rate_l2: c.ActionRateL2 | None = c.ActionRateL2(weight=-0.01)
-    # Menagerie's Go1 has each foot as a sphere on its calf: the calves' contacts are the feet's.
-    feet_air_time: c.FeetAirTime | None = c.FeetAirTime(weight=0.25, bodies=[".*_calf"],
+    feet_air_time: c.FeetAirTime | None = c.FeetAirTime(weight=0.25, bodies=[".*_foot"],
                                                           threshold_s=0.5)
     # Isaac Lab's Go1 leaves undesired (thigh) contacts out: --set it to turn it on.
     undesired_contacts: c.UndesiredContacts | None = None
@@ -156,11 +154,9 @@ class Go1FlatConfig(c.RobotTaskConfig):
     # Isaac Lab's _PLAY config: no noise, no pushes.
     play_overrides: ClassVar[dict[str, Any]] = {**c.RobotTaskConfig.play_overrides,
                                                 "events": {"push_robot": None}}
-    robot: RobotDescription | None = GO1
     num_envs: int = Field(256, gt=0, le=2**20, description="parallel environments")
     episode_length_s: float = Field(20.0, gt=0, le=1e6, description="time-out, in seconds")
     decimation: int = Field(4, gt=0, le=1000, description="physics steps per env step")
-    sim_dt: float | None = Field(0.005, gt=0, description="physics step")
     nconmax: int | None = 16
     njmax: int | None = 72
     actions: c.JointPosition = c.JointPosition(scale=0.25)

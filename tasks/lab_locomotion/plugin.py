@@ -3,7 +3,7 @@ use."""
 
 from pathlib import Path
 
-from lab_locomotion import g1, go1
+from lab_locomotion import g1
 from labcli.envs.spec import TaskSpec
 from labcli.plugins.hookspecs import hookimpl
 
@@ -131,9 +131,9 @@ def register_tasks(register):
                    "runs toward a target 1 km ahead", max_iterations=1000))
     register(TaskSpec(
         name="go1-flat", task=TASK, config="lab_locomotion.config:Go1FlatConfig",
-        model=go1.MODEL,
-        description="Isaac Lab's Velocity-Flat-Unitree-Go1: MuJoCo Menagerie's Unitree Go1 "
-                    "quadruped tracks velocity commands on flat ground",
+        model=HERE / "go1.xml",
+        description="Isaac Lab's Velocity-Flat-Unitree-Go1: a Go1 quadruped tracks velocity "
+                    "commands on flat ground",
         success="at the 20 s time-out, mean tracking errors under 0.25 m/s (xy) and 0.3 rad/s "
                 "(yaw rate)",
         framework_defaults=_velocity_defaults(num_envs=256, max_iterations=300)))
