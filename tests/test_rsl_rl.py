@@ -235,3 +235,22 @@ def test_cartpole_defaults_reach_success(tmp_path):
     assert outcome.summary["wall_time_s"] < 120
     _, episodes = play.play(run_dir=outcome.run.dir, episodes=200)
     assert episodes.success_rate >= 0.95
+
+
+def test_train_play_and_export_without_a_git_executable(tmp_path):
+    """RSL-RL imports GitPython, which refused to import without git ("Bad git executable"):
+    containers often have none, and lab needs no git state from it."""
+    import subprocess
+    import sys
+
+    env = {**os.environ, "GIT_PYTHON_GIT_EXECUTABLE": str(tmp_path / "no-git"),
+           "LAB_LOGS_DIR": str(tmp_path / "logs")}
+    env.pop("GIT_PYTHON_REFRESH", None)
+    lab = [sys.executable, "-m", "labcli"]
+    for args in (["train", "--task", "cartpole", "--framework", "rsl_rl", "--num-envs", "8",
+                  "--max-iterations", "1", "--set", "agent.num_steps_per_env=8"],
+                 ["play", "--last", "--episodes", "1"], ["export", "onnx", "--last"]):
+        done = subprocess.run([*lab, *args], env=env, capture_output=True, text=True,
+                              timeout=300)
+        assert done.returncode == 0, done.stderr
+        assert "git" not in done.stderr.lower(), done.stderr
