@@ -281,7 +281,7 @@ def test_envs_whose_physics_cannot_fit_are_one_line(monkeypatch):
     monkeypatch.setattr(cpu, "available_memory", lambda: 2**30)
     spec = registry.get_task("go1-flat")
     for make in (LabVecEnv, ShardedVecEnv):
-        with pytest.raises(LabError, match=r"env.num_envs=4,096 needs about 3\.\d GiB for the "
+        with pytest.raises(LabError, match=r"env.num_envs=65,536 needs about 2\.\d GiB for the "
                            r"cpu backend's physics .* more than the 1\.0 GiB free \(use at most "
-                           r"1,2\d\d envs\)"):
-            make(spec, spec.config_class(num_envs=4096))
+                           r"2\d,\d\d\d envs\)"):
+            make(spec, spec.config_class(num_envs=65536))
