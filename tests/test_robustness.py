@@ -476,6 +476,11 @@ def test_a_kill_during_a_re_export_leaves_the_previous_export(trained, tmp_path)
     kill_when_writing(KILLED_MID_EXPORT, str(run_dir))
     for name, data in exported.items():
         assert (run_dir / "exported" / name).read_bytes() == data
+    # The killed export's half-written file stays until the next export, which removes it.
+    (stale,) = (run_dir / "exported").glob(".tmp_policy*")
+    assert lab("export", "onnx", "--run", str(run_dir), logs=logs).exit_code == 0
+    assert not stale.exists()
+    assert sorted(p.name for p in (run_dir / "exported").iterdir()) == sorted(exported)
 
 
 LONG_TRAIN = ["--num-envs", "4", "--max-iterations", "100000"]

@@ -10,8 +10,9 @@ import enum
 import io
 import json
 import logging
+import os
 import warnings
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from datetime import datetime
 from pathlib import Path
@@ -102,6 +103,27 @@ def _run_onnx(path: Path, obs: torch.Tensor) -> np.ndarray:
     return session.run(["actions"], {"obs": obs.numpy()})[0]
 
 
+@contextlib.contextmanager
+def _exporting(out_dir: Path) -> Iterator[None]:
+    """One export of a run at a time (an advisory lock on its exported/ dir, which the OS
+    releases when the process ends however): what an export killed before it could clean up
+    left (`.tmp_policy.*`) is removed by the next."""
+    try:
+        import fcntl
+    except ImportError:  # Windows: no flock; stale files stay until removed by hand
+        yield
+        return
+    fd = os.open(out_dir, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0) | os.O_CLOEXEC)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX)
+        for stale in out_dir.glob(".tmp_policy*"):
+            if stale.is_file() and not stale.is_symlink():
+                stale.unlink(missing_ok=True)
+        yield
+    finally:
+        os.close(fd)
+
+
 def export(fmt: Format | str, *, run_dir: Path | None = None, checkpoint: Path | None = None,
            task: str | None = None, framework: str | None = None,
            logs_dir: Path | None = None, overrides: Sequence[str] = ()) -> ExportResult:
@@ -121,21 +143,22 @@ def export(fmt: Format | str, *, run_dir: Path | None = None, checkpoint: Path |
         metadata = describe(loaded, fmt, path)
         # Written and checked under a temporary name: the previous export survives a failed
         # check, a kill or a full disk, and a link at `path` is replaced, not followed.
-        with files.staged(path, below=run_dir) as tmp:
-            if fmt is Format.onnx:
-                _export_onnx(policy, obs, tmp, metadata)
-                got = _run_onnx(tmp, obs)
-            else:
-                got = _export_jit(policy, obs, tmp, metadata)
-            diff = float(np.max(np.abs(got - expected)))
-            if not diff < TOLERANCE:
-                raise LabError(f"exported {path.name} differs from the torch policy by "
-                               f"{diff:.2e} (tolerance {TOLERANCE:.0e}); nothing was written",
-                               "please report this as a bug")
-        metadata["check"] = {"max_abs_diff": diff, "tolerance": TOLERANCE,
-                             "observations": len(obs)}
-        beside = out_dir / f"{path.name}.json"
-        rundir.write_json(run_dir, f"{rundir.EXPORTED}/{beside.name}", metadata)
+        with _exporting(out_dir):
+            with files.staged(path, below=run_dir) as tmp:
+                if fmt is Format.onnx:
+                    _export_onnx(policy, obs, tmp, metadata)
+                    got = _run_onnx(tmp, obs)
+                else:
+                    got = _export_jit(policy, obs, tmp, metadata)
+                diff = float(np.max(np.abs(got - expected)))
+                if not diff < TOLERANCE:
+                    raise LabError(f"exported {path.name} differs from the torch policy by "
+                                   f"{diff:.2e} (tolerance {TOLERANCE:.0e}); nothing was "
+                                   "written", "please report this as a bug")
+            metadata["check"] = {"max_abs_diff": diff, "tolerance": TOLERANCE,
+                                 "observations": len(obs)}
+            beside = out_dir / f"{path.name}.json"
+            rundir.write_json(run_dir, f"{rundir.EXPORTED}/{beside.name}", metadata)
         return ExportResult(path, beside, diff, len(obs))
     finally:
         loaded.env.close()
