@@ -5,6 +5,7 @@ becomes one line on stderr and its exit code."""
 from __future__ import annotations
 
 import functools
+import os
 from collections.abc import Callable
 from typing import Annotated, Any
 
@@ -45,6 +46,10 @@ def one_line_errors(fn: Callable, *, saves: bool = False) -> Callable:
         except LabError as exc:
             from rich.text import Text
 
+            from labcli.runs import ranks
+
+            if getattr(exc, "said_by_launcher", False) and os.environ.get(ranks.LAUNCHED):
+                raise typer.Exit(ranks.PEER_LOST_EXIT) from None
             err().print(Text.assemble(("error:", "bold red"), f" {one_line(str(exc))}"),
                         highlight=False, soft_wrap=True)
             raise typer.Exit(exc.exit_code) from None

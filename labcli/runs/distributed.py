@@ -36,9 +36,11 @@ ORPHAN_CHECK_S = 0.5
 
 
 class RankLost(LabError):
-    """Another rank stopped answering (it died, or was killed): this one stops too."""
+    """Another rank stopped answering (it died, or was killed): this one stops too. Under
+    `lab train --nproc` the launcher says it (`ranks.LAUNCHED`)."""
 
     exit_code = 1
+    said_by_launcher = True
 
 
 def device_of(ranks: Ranks, device: str) -> str:

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+import os
 import socket
 import sys
 import threading
@@ -19,6 +20,7 @@ from typing import Any
 from rich.console import Console
 
 from labcli.errors import LabError, first_line
+from labcli.runs import ranks
 
 # The options that only the launcher reads: the ranks run the command without them.
 LAUNCH_OPTIONS = ("--nproc", "--nnodes", "--rdzv-endpoint", "--rdzv-id")
@@ -117,6 +119,8 @@ def launch(launch: Launch, argv: Sequence[str], console: Console) -> int:
         rdzv_configs={"read_timeout": STORE_TIMEOUT_S}, max_restarts=0, **later)
     # The agent logs every worker it starts and stops; a failure is said below in one line.
     logging.getLogger("torch.distributed.elastic").setLevel(logging.CRITICAL)
+    launched = os.environ.get(ranks.LAUNCHED)
+    os.environ[ranks.LAUNCHED] = "1"  # inherited by the ranks
     try:
         elastic_launch(config, sys.executable)("-m", "labcli", *rank_argv(argv))
     except RendezvousError as exc:
@@ -125,6 +129,16 @@ def launch(launch: Launch, argv: Sequence[str], console: Console) -> int:
                        "it, and open its port to the others") from None
     except ChildFailedError as exc:
         rank, failure = exc.get_first_failure()
+        if failure.exitcode == ranks.PEER_LOST_EXIT:  # a consequence: the cause is another's
+            causes = [(r, f) for r, f in exc.failures.items()
+                      if f.exitcode != ranks.PEER_LOST_EXIT]
+            if not causes:  # the rank that ended it is another host's, whose launcher says so
+                console.print("error: a rank on another host stopped answering; the ranks here "
+                              "were stopped (the run keeps its last checkpoint: resume it with "
+                              "--checkpoint latest and as many ranks)", highlight=False,
+                              soft_wrap=True)
+                return 1
+            rank, failure = min(causes, key=lambda cause: cause[1].timestamp)
         if failure.exitcode > 0:  # it said why itself, in its own line
             return failure.exitcode
         console.print(f"error: rank {rank} was ended by {failure.signal_name()}; the other "
@@ -133,6 +147,9 @@ def launch(launch: Launch, argv: Sequence[str], console: Console) -> int:
         return 1
     except SignalException as exc:  # passed on to the ranks, which checkpointed and stopped
         return 128 + int(exc.sigval)
+    finally:
+        if launched is None:
+            os.environ.pop(ranks.LAUNCHED, None)
     return 0
 
 

@@ -10,6 +10,11 @@ from dataclasses import dataclass
 from labcli.errors import LabError
 
 TORCHRUN_VARIABLES = ("RANK", "LOCAL_RANK", "WORLD_SIZE")
+# Set by `lab train --nproc` for its ranks: a rank that lost another exits with
+# `PEER_LOST_EXIT` and no line of its own, and the launcher, which sees every rank's end, says
+# which rank ended the run, in one line.
+LAUNCHED = "LAB_LAUNCHED"
+PEER_LOST_EXIT = 3
 
 
 @dataclass(frozen=True)
