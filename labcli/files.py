@@ -100,11 +100,13 @@ def real_dir(path: Path, create: bool = True, below: Path | None = None) -> Path
         if not create:
             raise LabError(f"{path} does not exist")
         try:
-            path.mkdir(parents=True, mode=DIR_MODE)
+            # Below a run dir its parents were made just above: a parent gone since was deleted
+            # under lab, and is said so, not made again.
+            path.mkdir(parents=below is None, mode=DIR_MODE)
         except FileExistsError:  # made meanwhile by another process: checked again below
             pass
         except OSError as exc:
-            raise unwritable(path, exc) from exc
+            raise _failure(path, exc, below) from exc
     if path.is_symlink() or not path.is_dir():
         raise LabError(f"{path} is not a directory", "remove or rename it, then run again")
     return path
