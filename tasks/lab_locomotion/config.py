@@ -253,14 +253,12 @@ class G1Events(c.Group):
             "pitch": (-0.52, 0.52), "yaw": (-0.78, 0.78)})
 
 
-class G1FlatConfig(c.RobotTaskConfig):
-    play_overrides: ClassVar[dict[str, Any]] = {**c.RobotTaskConfig.play_overrides,
-                                                "events": {"push_robot": None}}
+class G1FlatConfig(Go1FlatConfig):
+    """go1-flat's episodes, decimation, unclipped actions, success and per-second rewards, with
+    the G1's robot, physics and terms."""
+
     robot: RobotDescription | None = G1
     default_pose: str | None = "knees_bent"
-    num_envs: int = Field(256, gt=0, le=2**20, description="parallel environments")
-    episode_length_s: float = Field(20.0, gt=0, le=1e6, description="time-out, in seconds")
-    decimation: int = Field(4, gt=0, le=1000, description="physics steps per env step")
     sim_dt: float | None = Field(0.005, gt=0, description="physics step")
     # mjlab's solver settings (Menagerie's scene_mjx has 5 and 8).
     solver_iterations: int | None = Field(10, gt=0, le=1000)
@@ -268,11 +266,8 @@ class G1FlatConfig(c.RobotTaskConfig):
     nconmax: int | None = 35
     njmax: int | None = 300
     actions: c.JointPosition = c.JointPosition(scale=None)
-    clip_actions: float = 100.0
     commands: G1Commands = G1Commands()
     observations: G1Observations = G1Observations()
     rewards: G1Rewards = G1Rewards()
     terminations: G1Terminations = G1Terminations()
     events: G1Events = G1Events()
-    success: c.TrackedCommand | None = c.TrackedCommand(lin_vel_error=0.25, ang_vel_error=0.3)
-    rewards_per_second: bool = True
