@@ -234,6 +234,32 @@ def test_success_and_tracking_errors_per_episode_are_logged():
         assert stats["Metrics/base_velocity/error_vel_yaw"] < 0.1
 
 
+def test_an_error_window_judges_the_velocity_kept_over_a_stride_not_each_step_s_sway():
+    """A yaw rate that swings ±0.4 rad/s each step around the commanded 0 (a humanoid's pelvis
+    turning with each step): 0.4 rad/s of mean error step by step, a fiftieth of it averaged
+    over 0.2 s. A steady error of 0.5 m/s is 0.5 m/s either way: an episode starts with the
+    command as its error, as from rest."""
+    for window, yaw_error in ((0.0, 0.4), (0.2, 0.02)):
+        env = go1(2, "env.commands.base_velocity.heading_command=false",
+                  "env.commands.base_velocity.lin_vel_x=[0.5,0.5]",
+                  "env.commands.base_velocity.lin_vel_y=[0,0]",
+                  "env.commands.base_velocity.ang_vel_z=[0,0]",
+                  "env.commands.base_velocity.rel_standing_envs=0",
+                  f"env.commands.base_velocity.error_window={window}")
+        command, r = env.task.command("base_velocity"), env.task.robot
+        command.reset(torch.ones(2, dtype=torch.bool))
+        r.root_quat[:] = torch.tensor(yaw_quat(0.0), dtype=torch.float64)
+        r.root_lin_vel_w[:] = 0.0
+        for k in range(100):
+            r.root_ang_vel_b[:] = torch.tensor([0.0, 0.0, 0.4 * (-1) ** k], dtype=torch.float64)
+            env.task.update()
+            command.after_step()
+        lin, yaw = command.mean_errors[0].tolist()
+        env.close()
+        assert lin == pytest.approx(0.5)
+        assert yaw == pytest.approx(yaw_error, abs=0.01)
+
+
 def test_weights_are_per_second_as_isaac_lab_s():
     env = go1(2)
     assert env._weights[0].tolist() == pytest.approx(

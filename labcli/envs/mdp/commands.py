@@ -48,6 +48,10 @@ class UniformVelocityCommand:
         self.errors = like.new_zeros(n, 2)
         self.steps = like.new_zeros(n)
         self.mean_errors = like.new_zeros(n, 2)
+        # The error averaged over cfg.error_window s, and its weight on each new step's error.
+        self.window = cfg.error_window > 0.0
+        self.averaged_error = like.new_zeros(n, 3)
+        self._new_weight = min(1.0, task.step_dt / cfg.error_window) if self.window else 1.0
         # Views taken once: each step reads them, and indexing costs as much as an op.
         self._lin_xy, self._yaw_rate = self.command[:, :2], self.command[:, 2]
         self._robot_lin_xy = self.robot.root_lin_vel_b[:, :2]
@@ -77,10 +81,18 @@ class UniformVelocityCommand:
         # The env recomputes what the robot derives after the reset, not yet: the heading is
         # the root quaternion's.
         self._steer(math.yaw_of(self.robot.root_quat))
+        # An episode starts from rest (up to its reset's push): its error is the command.
+        torch.where(mask[:, None], self.command, self.averaged_error, out=self.averaged_error)
 
     def after_step(self) -> None:
-        self._errors_lin.add_(torch.linalg.vector_norm(self.lin_vel_error(), dim=1))
-        self._errors_yaw.add_(self.yaw_rate_error().abs())
+        if self.window:
+            error = torch.cat((self.lin_vel_error(), self.yaw_rate_error()[:, None]), dim=1)
+            self.averaged_error.lerp_(error, self._new_weight)
+            lin, yaw = self.averaged_error[:, :2], self.averaged_error[:, 2]
+        else:
+            lin, yaw = self.lin_vel_error(), self.yaw_rate_error()
+        self._errors_lin.add_(torch.linalg.vector_norm(lin, dim=1))
+        self._errors_yaw.add_(yaw.abs())
         self.steps.add_(1.0)
         torch.div(self.errors, self.steps[:, None], out=self.mean_errors)
         self.time_left.sub_(self.task.step_dt)

@@ -61,7 +61,11 @@ class UniformVelocityCommand(RangeChecked):
     (`heading_control_stiffness` x the heading error, clipped to `ang_vel_z`). A share
     `rel_forward_envs` of the draws is made forward-only (mjlab's): lin x is |lin x| and at
     least 0.3 m/s, lin y and the yaw rate 0 (a heading env's yaw rate still steers). Logs each
-    episode's mean tracking errors as Metrics/<name>/error_vel_xy and .../error_vel_yaw."""
+    episode's mean tracking errors as Metrics/<name>/error_vel_xy and .../error_vel_yaw; with
+    `error_window` > 0 s each step's error (command minus base velocity) is first averaged
+    over about that long (an exponential average), so that a gait whose base sways and turns
+    with every step is judged by the velocity it keeps over a stride. Rewards see each step's
+    error either way."""
 
     impl: ClassVar[str] = "labcli.envs.mdp.commands:UniformVelocityCommand"
     resampling_time_range: Range = (10.0, 10.0)
@@ -74,6 +78,7 @@ class UniformVelocityCommand(RangeChecked):
     lin_vel_y: Range = (-1.0, 1.0)
     ang_vel_z: Range = (-1.0, 1.0)
     heading: Range = (-math.pi, math.pi)
+    error_window: float = Field(0.0, ge=0.0)
 
 
 class CommandRef(Term):
