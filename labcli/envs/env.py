@@ -33,6 +33,7 @@ UNSTABLE = "unstable"
 
 # The info key of lab's episode figures: gymnasium's RecordEpisodeStatistics owns "episode".
 EPISODE = "lab_episode"
+TASK_STATE = "task/"  # the saved env state's keys of the task's own (Task.state)
 AUTORESET_MODES = (AutoresetMode.SAME_STEP, AutoresetMode.NEXT_STEP)
 # Totals of episode figures in, their sums over the ranks of a data-parallel run out.
 Reduce = Callable[[torch.Tensor], torch.Tensor]
@@ -381,18 +382,16 @@ class LabVecEnv(gym.vector.VectorEnv):
     # resume ----------------------------------------------------------------------------------
     def get_state(self) -> dict[str, torch.Tensor]:
         """What continues every episode exactly where it is: the sim's positions, velocities and
-        controls (what tasks read and write), episode counters and the random generators."""
-        return {
-            "qpos": self.sim.qpos.clone(), "qvel": self.sim.qvel.clone(),
-            "ctrl": self.sim.ctrl.clone(), "episode_length": self.episode_length.clone(),
-            "episode_return": self.episode_return.clone(),
-            "episode_terms": self.episode_terms.clone(), "generator": self.rng.get_state(),
-        }
+        controls (what tasks read and write), episode counters, what the task carries from step
+        to step (`Task.state`: commands, timers, per-env physics) and the random generators."""
+        return {**{name: target.clone() for name, target in self._state_targets().items()},
+                "generator": self.rng.get_state()}
 
     def _state_targets(self) -> dict[str, torch.Tensor]:
         return {"qpos": self.sim.qpos, "qvel": self.sim.qvel, "ctrl": self.sim.ctrl,
                 "episode_length": self.episode_length, "episode_return": self.episode_return,
-                "episode_terms": self.episode_terms}
+                "episode_terms": self.episode_terms,
+                **{TASK_STATE + name: t for name, t in self.task.state().items()}}
 
     def check_state(self, state: Any, num_envs: int | None = None,
                     rng: EnvRandom | None = None) -> None:
@@ -403,6 +402,8 @@ class LabVecEnv(gym.vector.VectorEnv):
             raise LabError(f"saved env state is a {type(state).__name__}, not a mapping")
         for name, target in self._state_targets().items():
             value = state.get(name)
+            if value is None and name.startswith(TASK_STATE):
+                continue  # saved by a lab before tasks' state was: their episodes go on without
             shape = (num_envs or self.num_envs, *target.shape[1:])
             if not isinstance(value, torch.Tensor) or tuple(value.shape) != shape:
                 shown = tuple(value.shape) if isinstance(value, torch.Tensor) else repr(value)
@@ -422,8 +423,10 @@ class LabVecEnv(gym.vector.VectorEnv):
     def set_state(self, state: dict[str, torch.Tensor]) -> None:
         self.check_state(state)  # all checked before any is changed
         for name, target in self._state_targets().items():
-            target.copy_(state[name])
+            if name in state:
+                target.copy_(state[name])
         self.rng.set_state(state["generator"])
+        self.task.state_restored()
         self.task.update()
 
     def __reduce__(self):

@@ -95,6 +95,16 @@ class Task:
         """Boolean `[num_envs]` per termination cause (time-outs are the env's business)."""
         return {}
 
+    def state(self) -> dict[str, torch.Tensor]:
+        """The task's own per-env tensors (`[num_envs, ...]`) that carry from one step to the
+        next beyond the sim's state (a command, its timer, per-env masses), by name: the env
+        saves them with its state and restores them in place, so that a resumed run or a copy
+        goes on exactly. The default: none."""
+        return {}
+
+    def state_restored(self) -> None:
+        """Called after `state()`'s tensors were written from a saved state."""
+
     def reset(self, mask: torch.Tensor, rng: EnvRandom) -> None:
         """Randomize the state of the envs in `mask`; the sim already put them at the defaults."""
 

@@ -26,6 +26,8 @@ class UniformVelocityCommand:
     envs' yaw rates steered from the new state, which the next observation shows."""
 
     names = ["lin_vel_x", "lin_vel_y", "ang_vel_z"]
+    carried = ("command", "heading", "time_left", "heading_env", "standing_env", "forward_env",
+               "errors", "steps", "mean_errors", "averaged_error")
 
     def __init__(self, task: RobotTask, cfg: c.UniformVelocityCommand):
         self.task, self.cfg, self.robot = task, cfg, task.robot

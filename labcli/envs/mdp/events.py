@@ -90,6 +90,8 @@ class reset_root_state_uniform:  # noqa: N801
 
 
 class push_by_setting_velocity:  # noqa: N801
+    carried = ("time_left",)
+
     def __init__(self, task: RobotTask, cfg: c.PushByVelocity):
         self.task, self.dt = task, task.step_dt
         self.interval = Uniform(task, [cfg.interval_s])
@@ -115,6 +117,7 @@ class _ModelEvent:
     per component)."""
 
     field: ClassVar[str]
+    carried = ("values",)
 
     def __init__(self, task: RobotTask, rows: list[int], ranges: list[tuple[float, float]],
                  mode: str):
@@ -128,6 +131,9 @@ class _ModelEvent:
             self.reset = self.apply
         else:  # RobotTask runs it once, at the env's first reset
             self.startup = lambda: self.apply(self.everyone)
+
+    def restored(self) -> None:
+        self.sim.model_changed(self.field, self.everyone)
 
     def column(self) -> torch.Tensor:
         return self.values[:, self.rows]

@@ -72,6 +72,8 @@ class FootContacts:
     touched yet: a foot on the ground makes its first contact in the episode's first step, as
     in mjlab, whose contact time restarts at 0."""
 
+    carried = ("_air", "_was_touching")
+
     def __init__(self, task: RobotTask, bodies: list[str]):
         self.bodies, self.robot = bodies, task.robot
         n, k = task.num_envs, len(bodies)

@@ -137,6 +137,8 @@ class feet_air_time:  # noqa: N801
     """Air time counted in env steps: a foot in contact at the end of the step that was not at
     the end of the last one touched down in this step, after `air + step` s in the air."""
 
+    carried = ("air", "was_in_contact")
+
     def __init__(self, task: RobotTask, cfg: c.FeetAirTime):
         self.contacts = sensors.BodyContacts(task, cfg.bodies, cfg.threshold)
         self.command, self.cfg, self.dt = task.command(cfg.command), cfg, task.step_dt
@@ -379,6 +381,8 @@ class feet_swing_height(_FootTerm):  # noqa: N801
     """Each foot's peak height in the air, at the ends of steps: the peak so far and this
     step's where it is in the air (`peak_now`, once per state), kept by `after_step` and
     cleared where the foot lands and at reset."""
+
+    carried = ("peak",)
 
     def __init__(self, task: RobotTask, cfg: c.FeetSwingHeight):
         super().__init__(task, cfg)

@@ -16,6 +16,8 @@ if TYPE_CHECKING:
 class moved_toward_target:  # noqa: N801
     """How far the root moved toward the target since its episode began, horizontally."""
 
+    carried = ("start",)
+
     def __init__(self, task: RobotTask, cfg: c.MovedTowardTarget):
         self.task, self.cfg = task, cfg
         self.start = task.robot.root_xy.clone()

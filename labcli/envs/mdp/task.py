@@ -9,11 +9,14 @@ once as `Term(task, cfg)` and called every step, which may also have:
   carries from step to step: a command's timer, the feet's air time);
 - `reset(mask)`: after the envs in `mask` were reset (events draw their state here);
 - `metrics()`: figures per env about the episode so far, logged as `Metrics/<term>/<key>`;
+- `carried`: names of its per-env tensors that carry from step to step (a command, a timer,
+  the feet's air time), saved with the env's state and restored in place (`Task.state`), and
+  `restored()`, called after they were;
 - `names`: observation column names;
 - `sensors(model, cfg)` (a staticmethod): the MuJoCo sensors it reads (labcli/envs/mdp/sensors.py),
   added to the model before it is compiled.
 State that several terms read and carry from step to step (the feet's contacts) is an object
-they share through `task.shared`, whose hooks run once.
+they share through `task.shared`, whose hooks (and `carried`) run once.
 """
 
 from __future__ import annotations
@@ -144,6 +147,9 @@ class RobotTask(Task):
         self._term_resets = [b.reset for b in every
                              if b.reset is not None and b not in self._events]
         self._term_resets += [s.reset for s in shared if hasattr(s, "reset")]
+        self._carriers = [(b.name, b.made) for b in every if getattr(b.made, "carried", ())]
+        self._carriers += [(f"shared{i}", s) for i, s in enumerate(shared)
+                           if getattr(s, "carried", ())]
         if not self._obs:
             raise LabError("the task's config lists no observation terms",
                            "give env.observations at least one term")
@@ -200,6 +206,18 @@ class RobotTask(Task):
     def after_step(self) -> None:
         for hook in self._after_step:
             hook()
+
+    def state(self) -> dict[str, torch.Tensor]:
+        return {"action": self.action, "previous_action": self.previous_action,
+                **{f"{owner}/{name}": getattr(made, name) for owner, made in self._carriers
+                   for name in made.carried}}
+
+    def state_restored(self) -> None:
+        # The saved state has its start-up events' draws already: they must not run again.
+        self._startups.clear()
+        for _, made in self._carriers:
+            if hasattr(made, "restored"):
+                made.restored()
 
     def success(self, time_out: torch.Tensor) -> torch.Tensor:
         if self._success is None:

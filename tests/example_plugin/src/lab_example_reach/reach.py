@@ -42,6 +42,10 @@ class Reach(Task):
         # terms once before the first reset (to check their names), so it must exist already.
         self.target = torch.zeros_like(sim.qpos)
 
+    def state(self) -> dict[str, torch.Tensor]:
+        # Saved with the env's state and restored in place: a resumed run goes on exactly.
+        return {"target": self.target}
+
     def _to_target(self) -> torch.Tensor:
         return self.target - self.sim.qpos
 
