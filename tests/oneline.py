@@ -1,8 +1,8 @@
 """The shape of every bad-input error, asserted the same way by every test module."""
 
-# `lab train` says what it is about to do before the seconds of start-up; an error found after
-# that line comes on the next. Nothing else may precede the error.
-ANNOUNCEMENTS = ("train ", "resume ")
+# `lab train` and `lab sweep` say what they are about to do before the seconds of start-up; an
+# error found after that line comes on the next. Nothing else may precede the error.
+ANNOUNCEMENTS = ("train ", "resume ", "sweep ")
 
 
 def assert_one_line_error(result, *phrases: str, exit_code: int = 2,

@@ -80,6 +80,9 @@ def test_a_checked_space_passes(tmp_path):
      ["'agent.learning_rate'", "low 0.2 is not below its high 0.1", "[0.1, 0.2]"]),
     ({"agent.num_mini_batches": {"randint": [8, 2]}},
      ["'agent.num_mini_batches'", "randint's low 8 is above its high 2"]),
+    ({"agent.num_learning_epochs": {"randint": [1, 10**30]}},
+     ["'agent.num_learning_epochs'", "randint [1, 1000000000000000000000000000000] leaves the "
+      "64-bit integers Ray Tune draws from"]),
     ({"agent.num_learning_epochs": {"choice": []}},
      ["'agent.num_learning_epochs': choice needs a non-empty list"]),
     ({"agent.learning_rate": {"uniform": [0.1]}}, ["uniform needs [low, high]"]),
@@ -142,6 +145,18 @@ def test_an_existing_sweep_is_not_overwritten(tmp_path):
     result = lab("sweep", *SMALL, "--space", str(space_file(tmp_path, SPACE)), "--samples", "2",
                  "--name", "mine", logs=tmp_path)
     assert_one_line_error(result, "sweep", "mine exists", "lab sweep --resume")
+
+
+def test_an_address_where_nothing_answers_is_one_line_at_once(tmp_path):
+    """Ray's own client retried such an address for 822 s."""
+    pytest.importorskip("ray.tune")
+    started = time.monotonic()
+    result = lab("sweep", *SMALL, "--space", str(space_file(tmp_path, SPACE)), "--samples", "2",
+                 "--address", "127.0.0.1:1", logs=tmp_path / "l")
+    assert_one_line_error(result, "cannot join Ray at 127.0.0.1:1: nothing answers at "
+                          "127.0.0.1:1", "check --address")
+    assert time.monotonic() - started < 30
+    assert not (tmp_path / "l").exists()
 
 
 def test_without_ray_sweep_says_how_to_install_it(tmp_path, monkeypatch):

@@ -9,7 +9,6 @@ from __future__ import annotations
 import dataclasses
 import logging
 import os
-import socket
 import sys
 import threading
 import uuid
@@ -19,6 +18,7 @@ from typing import Any
 
 from rich.console import Console
 
+from labcli import endpoints
 from labcli.errors import LabError, first_line
 from labcli.runs import ranks
 
@@ -70,18 +70,7 @@ class Launch:
 
     def endpoint(self) -> tuple[str, int]:
         """--rdzv-endpoint as a host this machine can resolve and a port."""
-        host, _, port = (self.rdzv_endpoint or "").rpartition(":")
-        host = host.removeprefix("[").removesuffix("]")  # an IPv6 address, [::1]:29400
-        if not host or not port.isdigit() or not 0 < int(port) < 65536:
-            raise LabError(f"--rdzv-endpoint '{self.rdzv_endpoint}' is not HOST:PORT",
-                           "e.g. --rdzv-endpoint node0:29400 (a port from 1 to 65535)")
-        try:
-            socket.getaddrinfo(host, int(port), type=socket.SOCK_STREAM)
-        except (OSError, UnicodeError) as exc:
-            raise LabError(f"--rdzv-endpoint '{self.rdzv_endpoint}': host '{host}' cannot be "
-                           f"resolved ({exc})", "pass the rendezvous host's name or address"
-                           ) from None
-        return host, int(port)
+        return endpoints.parse(self.rdzv_endpoint or "", "--rdzv-endpoint", "node0:29400")
 
 
 def rank_argv(argv: Sequence[str]) -> list[str]:

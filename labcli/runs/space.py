@@ -27,6 +27,8 @@ from labcli.runs import config
 
 UNIFORM, LOGUNIFORM, RANDINT, CHOICE = "uniform", "loguniform", "randint", "choice"
 DISTRIBUTIONS = (UNIFORM, LOGUNIFORM, RANDINT, CHOICE)
+# Tune's randint draws with NumPy in int64, its upper end excluded (lab's high + 1).
+INT64 = (-(2**63), 2**63 - 1)
 EXAMPLE = "e.g. agent.learning_rate: {loguniform: [1.0e-4, 1.0e-2]}"
 # Set by the sweep itself: the trials' length (--iterations, ASHA's horizon) and their physics
 # threads (sized to the cores each trial gets).
@@ -116,6 +118,9 @@ def _distribution(key: str, spec: Any, where: str) -> Distribution:
         if low > high:
             raise LabError(f"{where}: '{key}': randint's low {low} is above its high {high}",
                            f"write [low, high], e.g. [{high}, {low}]")
+        if not (INT64[0] <= low and high < INT64[1]):
+            raise LabError(f"{where}: '{key}': randint [{low}, {high}] leaves the 64-bit "
+                           "integers Ray Tune draws from", "keep both ends within ±9.2e18")
     elif not low < high:
         raise LabError(f"{where}: '{key}': {kind}'s low {low} is not below its high {high}",
                        f"write [low, high], e.g. [{min(low, high)}, {max(low, high)}]; for one "

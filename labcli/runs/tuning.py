@@ -28,6 +28,7 @@ from ray.train._internal.session import get_session
 from ray.tune.trainable.function_trainable import wrap_function
 from rich.console import Console
 
+from labcli import endpoints
 from labcli.envs import metrics
 from labcli.errors import LabError, first_line
 from labcli.plugins import registry
@@ -170,6 +171,7 @@ def settings(task: str, framework: str, *, name: str, logs_dir: Path, fixed: lis
 
 
 LOCAL = "local"
+ANSWER_TIMEOUT_S = 10.0  # a cluster's head that does not accept a connection in this long
 
 
 def start(address: str | None, cores: int) -> bool:
@@ -178,6 +180,13 @@ def start(address: str | None, cores: int) -> bool:
     Ray was started here (and is to be shut down here)."""
     if ray.is_initialized():
         return False
+    if address not in (None, "auto", LOCAL):
+        # Ray's client retries an address where nothing listens for minutes (822 s measured).
+        host, port = endpoints.parse(address.removeprefix("ray://"), "--address",
+                                     "ray://HOST:10001")
+        endpoints.check_answers(host, port, ANSWER_TIMEOUT_S, f"cannot join Ray at {address}",
+                                "check --address: the cluster's head as ray://HOST:10001 for Ray "
+                                "Client or HOST:6379 for its GCS")
     options: dict[str, Any] = {"include_dashboard": False, "log_to_driver": False,
                                "logging_level": logging.ERROR}
     if address is None:
