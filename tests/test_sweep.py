@@ -299,15 +299,21 @@ def test_an_interrupted_sweep_resumes_its_trials_from_their_checkpoints(tmp_path
     assert math.isfinite(after[next(iter(after))]["metric"])
 
 
-def test_an_optuna_sweep_runs_its_trials(tmp_path):
-    """--search optuna: Optuna's sampler draws each trial within the space."""
+def test_an_optuna_sweep_runs_its_trials_under_an_address_space_limit(tmp_path):
+    """--search optuna: Optuna's sampler draws each trial within the space. Under `ulimit -v
+    8G` (each process's address space), where Ray's default object store hung the sweep."""
     pytest.importorskip("optuna")
     pytest.importorskip("ray.tune")
+    resource = pytest.importorskip("resource")
     logs = tmp_path / "logs"
-    result = lab("sweep", *SMALL, "--space", str(space_file(tmp_path, SPACE)), "--samples", "2",
-                 "--iterations", "3", "--search", "optuna", "--scheduler", "none",
-                 "--name", "tpe", logs=logs)
-    assert result.exit_code == 0, result.output
+    limit = 8 * 2**30
+    result = subprocess.run(
+        [sys.executable, "-m", "labcli", "sweep", *SMALL, "--space",
+         str(space_file(tmp_path, SPACE)), "--samples", "2", "--iterations", "3", "--search",
+         "optuna", "--scheduler", "none", "--name", "tpe"], capture_output=True, text=True,
+        timeout=300, env={**os.environ, "LAB_LOGS_DIR": str(logs), "COLUMNS": "250"},
+        preexec_fn=lambda: resource.setrlimit(resource.RLIMIT_AS, (limit, limit)))
+    assert result.returncode == 0, result.stdout + result.stderr
     trials = json.loads((logs / "sweeps" / "tpe" / "results.json").read_text())["trials"]
     assert [t["state"] for t in trials] == ["finished", "finished"]
     for trial in trials:

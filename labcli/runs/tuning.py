@@ -171,6 +171,7 @@ def settings(task: str, framework: str, *, name: str, logs_dir: Path, fixed: lis
 
 
 LOCAL = "local"
+MIN_OBJECT_STORE = 80 * 2**20  # Ray refuses less than 75 MiB
 ANSWER_TIMEOUT_S = 10.0  # a cluster's head that does not accept a connection in this long
 
 
@@ -194,6 +195,7 @@ def start(address: str | None, cores: int) -> bool:
         # RAY_ADDRESS or Ray's last `ray start` on this machine names, another user's or one
         # long gone.
         options["num_cpus"] = cores
+        options.update(_object_store_under_limit())
     try:
         ray.init(address=address or LOCAL, **options)
     except (ConnectionError, RuntimeError, ValueError) as exc:
@@ -203,6 +205,26 @@ def start(address: str | None, cores: int) -> bool:
                        "the same Ray, and RAY_AUTH_MODE=token where it asks for a token"
                        if address else "see Ray's logs in /tmp/ray") from None
     return True
+
+
+def _object_store_under_limit() -> dict[str, int]:
+    """Under a limit on each process's address space (`ulimit -v`), an object store that fits:
+    Ray's default (30% of the memory) maps more than the limit in its raylet, which then dies
+    while the driver waits for it forever. The sweep's trials pass Ray only small results."""
+    try:
+        import resource
+    except ImportError:  # Windows: no such limit
+        return {}
+    limit = resource.getrlimit(resource.RLIMIT_AS)[0]
+    if limit == resource.RLIM_INFINITY:
+        return {}
+    store = limit // 8
+    if store < MIN_OBJECT_STORE:
+        raise LabError(f"Ray cannot start under this address-space limit (ulimit -v "
+                       f"{limit // 1024} KiB): its object store needs {MIN_OBJECT_STORE // 2**20} "
+                       "MiB and its processes several times more",
+                       "raise it (ulimit -v unlimited), or join a cluster with --address")
+    return {"object_store_memory": store}
 
 
 def stop(started: bool) -> None:
