@@ -21,6 +21,14 @@ if "MENAGERIE_ROOT" not in os.environ and UNPACK.is_file():
         [str(UNPACK)], check=True, capture_output=True, text=True).stdout.strip()
 
 
+# The key that signs sweep state (labcli/runs/sweep_state.py) is the tests' own, not the
+# user's: one per test session.
+if "LAB_CONFIG_DIR" not in os.environ:
+    import tempfile
+
+    os.environ["LAB_CONFIG_DIR"] = tempfile.mkdtemp(prefix="lab-test-config-")
+
+
 def needs_menagerie(robot: str) -> pytest.MarkDecorator:
     """Skips a test where Menagerie's `robot` is neither in MENAGERIE_ROOT nor in the cache."""
     import mujoco_menagerie as mm

@@ -8,6 +8,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -159,6 +160,44 @@ def test_an_address_where_nothing_answers_is_one_line_at_once(tmp_path):
     assert not (tmp_path / "l").exists()
 
 
+def made_sweep(tmp_path: Path, **changes: object) -> Path:
+    """A sweep dir as `lab sweep` starts one (sweep.yaml, space.yaml), with `changes` made to
+    its sweep.yaml by hand."""
+    sweep_dir = tmp_path / "sweeps" / "hand"
+    sweep_dir.mkdir(parents=True)
+    spec = {"task": "cartpole", "framework": "rsl_rl", "space": SPACE, "samples": 4,
+            "metric": "success", "scheduler": "asha", "search": "random", "fixed": [],
+            "iterations": 5, "name": "hand", "logs_dir": str(tmp_path), "max_concurrent": None}
+    (sweep_dir / "sweep.yaml").write_text(yaml.safe_dump({**spec, **changes}))
+    (sweep_dir / "space.yaml").write_text(yaml.safe_dump(SPACE))
+    return sweep_dir
+
+
+@pytest.mark.parametrize("changes, phrase", [
+    ({"samples": -3}, "--samples must be a positive integer, got -3"),
+    ({"max_concurrent": 0}, "--max-concurrent must be a positive integer, got 0"),
+    ({"samples": "x"}, "samples is 'x', not of the kind lab wrote"),
+    ({"metric": "bogus"}, "--metric 'bogus' is not one of success, return"),
+    ({"fixed": [3]}, "fixed is [3], not a list of KEY=VALUE strings"),
+    ({"name": "../x"}, "is not a plain name"),
+])
+def test_a_hand_edited_sweep_yaml_is_refused_on_resume_before_any_trial(tmp_path, changes,
+                                                                       phrase):
+    sweep_dir = made_sweep(tmp_path, **changes)
+    result = lab("sweep", "--resume", str(sweep_dir), logs=tmp_path)
+    assert_one_line_error(result, f"{sweep_dir / 'sweep.yaml'} is damaged", phrase,
+                          "restore it, or start a new sweep")
+
+
+def test_a_sweep_run_by_another_driver_is_not_resumed_beside_it(tmp_path):
+    pytest.importorskip("ray.tune")
+    sweep_dir = made_sweep(tmp_path)
+    with rundir.holding(sweep_dir, lambda: LabError("held")):  # as a running `lab sweep` does
+        result = lab("sweep", "--resume", str(sweep_dir), logs=tmp_path)
+    assert_one_line_error(result, f"sweep {sweep_dir} is being run by another lab sweep",
+                          "wait for it to end")
+
+
 def test_without_ray_sweep_says_how_to_install_it(tmp_path, monkeypatch):
     for module in ("ray", "ray.tune"):
         monkeypatch.setitem(sys.modules, module, None)  # `import ray` fails as uninstalled
@@ -284,6 +323,24 @@ def test_an_interrupted_sweep_resumes_its_trials_from_their_checkpoints(tmp_path
     for trial in cut:  # stopped as Ctrl-C stops `lab train`: checkpointed, resumable
         summary = rundir.Run(Path(trial["run_dir"])).summary()
         assert summary["checkpoint"] == f"model_{summary['iterations']}.pt"
+
+    # Its Ray Tune state is signed with the user's key: a copy changed in any way, unsigned,
+    # or signed with another key is refused before Ray unpickles any of it.
+    assert (sweep_dir / "state.sig").is_file()
+    refused = ["not Ray Tune state your lab sweep signed", "carries no signature of yours",
+               "not Ray Tune state your lab sweep signed"]
+    for case, phrase in zip(("changed", "unsigned", "other key"), refused, strict=True):
+        copy = tmp_path / case
+        shutil.copytree(sweep_dir, copy)
+        if case == "changed":
+            with open(copy / "tuner.pkl", "ab") as out:
+                out.write(b"\0")
+        elif case == "unsigned":
+            (copy / "state.sig").unlink()
+        env = {"LAB_CONFIG_DIR": str(tmp_path / "other")} if case == "other key" else {}
+        result = CliRunner().invoke(app, ["sweep", "--resume", str(copy)],
+                                    env={"LAB_LOGS_DIR": str(logs), "COLUMNS": "250", **env})
+        assert_one_line_error(result, phrase, "start this one again under a new --name")
 
     resumed = lab("sweep", "--resume", str(sweep_dir), logs=logs)
     assert resumed.exit_code == 0, resumed.output

@@ -9,7 +9,7 @@ import re
 import socket
 import tempfile
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from datetime import datetime
 from pathlib import Path
@@ -197,25 +197,33 @@ def _alive(manifest: dict[str, Any]) -> bool:
 @contextlib.contextmanager
 def writing(run: Run) -> Iterator[None]:
     """Hold the run while this process writes it: a second `lab train` of the same run is
-    refused at once, naming the process that holds it. An advisory lock (flock) on the run dir
-    itself, which writes nothing and which the OS releases when its process ends, however."""
+    refused at once, naming the process that holds it."""
+    with holding(run.dir, lambda: LabError(
+            f"run {run.dir} is being written by {_holder(run)}",
+            "wait for it to end, or stop it first; two writers would mix their checkpoints")):
+        yield
+
+
+@contextlib.contextmanager
+def holding(directory: Path, busy: Callable[[], LabError]) -> Iterator[None]:
+    """Hold `directory` while this process writes it, or raise `busy()` at once where another
+    does: an advisory lock (flock) on the directory itself, which writes nothing and which the
+    OS releases when its process ends, however."""
     try:
         import fcntl
-    except ImportError:  # Windows: no flock; runs there are not guarded against two writers
+    except ImportError:  # Windows: no flock; nothing there is guarded against two writers
         yield
         return
     try:
-        fd = os.open(run.dir, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0)
+        fd = os.open(directory, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0)
                      | getattr(os, "O_CLOEXEC", 0))
     except OSError as exc:
-        raise LabError(f"run {run.dir} cannot be opened: {exc.strerror}") from exc
+        raise LabError(f"{directory} cannot be opened: {exc.strerror}") from exc
     try:
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
-            raise LabError(f"run {run.dir} is being written by {_holder(run)}",
-                           "wait for it to end, or stop it first; two writers would mix their "
-                           "checkpoints") from None
+            raise busy() from None
         yield
     finally:
         os.close(fd)  # releases the lock

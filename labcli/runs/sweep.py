@@ -9,6 +9,7 @@ imported only once it is known to be installed (`labcli/runs/tuning.py`)."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import signal
@@ -24,7 +25,7 @@ from rich.console import Console
 from labcli import files
 from labcli.envs.cores import cores
 from labcli.errors import Interrupted, LabError
-from labcli.runs import config, interrupt, rundir, space
+from labcli.runs import config, interrupt, rundir, space, sweep_state
 from labcli.runs.plan import gpu_scale, plan
 
 if TYPE_CHECKING:
@@ -32,6 +33,8 @@ if TYPE_CHECKING:
 
 SWEEPS = "sweeps"  # <logs>/sweeps/<name>/
 SETTINGS, SPACE, RESULTS, BEST = "sweep.yaml", "space.yaml", "results.json", "best.yaml"
+# lab's own files in a sweep dir, read as YAML or JSON data; the rest is Ray Tune's, signed.
+OWN = frozenset({SETTINGS, SPACE, RESULTS, BEST})
 # --metric: the figure each trial reports and the sweep maximizes, and where a run's summary
 # keeps it.
 METRICS = {"success": "success_rate", "return": "mean_return"}
@@ -90,10 +93,27 @@ class SweepSpec:
                            f"pass a dir made by `lab sweep`, <logs>/{SWEEPS}/<name>")
         try:
             data = files.load_yaml(files.read_text(path))
-            return cls(**data)
-        except (files.Unreadable, TypeError) as exc:
-            raise LabError(f"{path} is damaged: {exc}", "restore it, or start a new sweep"
-                           ) from None
+            spec = cls(**data)
+            spec.check()
+        except (files.Unreadable, TypeError, LabError) as exc:
+            raise LabError(f"{path} is damaged: {getattr(exc, 'message', exc)}",
+                           "restore it, or start a new sweep") from None
+        return spec
+
+    def check(self) -> None:
+        """What `lab sweep` checks of its options, for a sweep.yaml read back."""
+        kinds = {"task": str, "framework": str, "space": dict, "samples": int, "metric": str,
+                 "scheduler": str, "search": str, "fixed": list, "iterations": int, "name": str,
+                 "logs_dir": str, "max_concurrent": (int, type(None))}
+        for key, kind in kinds.items():
+            value = getattr(self, key)
+            if not isinstance(value, kind) or isinstance(value, bool):
+                raise TypeError(f"{key} is {value!r}, not of the kind lab wrote")
+        if not all(isinstance(item, str) for item in self.fixed):
+            raise TypeError(f"fixed is {self.fixed!r}, not a list of KEY=VALUE strings")
+        _check_options(self.samples, self.metric, self.scheduler, self.search,
+                       self.max_concurrent, self.iterations)
+        _check_name(self.name)
 
 
 def format_metric(metric: str, value: float | None) -> str:
@@ -158,9 +178,10 @@ def sweep(task: str, framework: str, space_file: Path, *, samples: int,
                 max_iterations=the_plan.agent_cfg.max_iterations, gpu_scale=gpu,
                 where=str(space_file), scalar_choices=search == "optuna")
     sweep_dir = logs_dir / SWEEPS / name
+    exists = LabError(f"sweep {sweep_dir} exists",
+                      f"continue it with lab sweep --resume {sweep_dir}, or pick another --name")
     if sweep_dir.exists():
-        raise LabError(f"sweep {sweep_dir} exists",
-                       f"continue it with lab sweep --resume {sweep_dir}, or pick another --name")
+        raise exists
     rundir.check_writable(sweep_dir.parent)
     require_ray(search)  # after the input's checks: those need no Ray
     spec = SweepSpec(task=the_plan.spec.name, framework=the_plan.framework.name,
@@ -168,7 +189,24 @@ def sweep(task: str, framework: str, space_file: Path, *, samples: int,
                      metric=metric, scheduler=scheduler, search=search, fixed=fixed,
                      iterations=the_plan.agent_cfg.max_iterations, name=name,
                      logs_dir=str(logs_dir), max_concurrent=max_concurrent)
-    return _run(spec, sweep_dir, drawn, gpu, address, console, restore=False)
+    top = sweep_dir  # the highest directory made for the sweep, removed if it writes nothing
+    while not top.parent.exists():
+        top = top.parent
+    files.user_dir(sweep_dir.parent)
+    try:  # made here and nowhere else: of two sweeps of one name, the second stops here
+        sweep_dir.mkdir(mode=files.DIR_MODE)
+    except FileExistsError:
+        raise exists from None
+    except OSError as exc:
+        raise files.unwritable(sweep_dir, exc) from exc
+    try:
+        with _holding(sweep_dir):
+            return _run(spec, sweep_dir, drawn, gpu, address, console, restore=False)
+    finally:
+        if not any(sweep_dir.iterdir()):  # stopped before it wrote anything
+            for made in (sweep_dir, *sweep_dir.parents[:len(sweep_dir.relative_to(top).parts)]):
+                with contextlib.suppress(OSError):
+                    made.rmdir()
 
 
 def resume(sweep_dir: Path, *, address: str | None = None,
@@ -181,14 +219,25 @@ def resume(sweep_dir: Path, *, address: str | None = None,
     require_ray(spec.search)
     from labcli.runs import tuning
 
-    if not tuning.can_restore(sweep_dir):
-        raise LabError(f"{sweep_dir} holds no Ray Tune state to resume",
-                       "it was stopped before its first trial started: start it again")
-    # The task and framework must still be there, and the fixed settings still valid.
-    plan(spec.task, spec.framework, overrides=spec.fixed, max_iterations=spec.iterations,
-         logs_dir=Path(spec.logs_dir))
-    drawn = space.parse(spec.space, str(sweep_dir / SPACE))
-    return _run(spec, sweep_dir, drawn, gpu_scale(None, None), address, console, restore=True)
+    with _holding(sweep_dir):
+        if not tuning.can_restore(sweep_dir):
+            raise LabError(f"{sweep_dir} holds no Ray Tune state to resume",
+                           "it was stopped before its first trial started: start it again")
+        sweep_state.verify(sweep_dir, OWN)  # before Ray unpickles any of it
+        # The task and framework must still be there, and the fixed settings still valid.
+        plan(spec.task, spec.framework, overrides=spec.fixed, max_iterations=spec.iterations,
+             logs_dir=Path(spec.logs_dir))
+        drawn = space.parse(spec.space, str(sweep_dir / SPACE))
+        return _run(spec, sweep_dir, drawn, gpu_scale(None, None), address, console,
+                    restore=True)
+
+
+def _holding(sweep_dir: Path):
+    """One driver at a time in a sweep dir: a second `lab sweep --resume` while one runs would
+    have Ray Tune write the same state twice."""
+    return rundir.holding(sweep_dir, lambda: LabError(
+        f"sweep {sweep_dir} is being run by another lab sweep",
+        "wait for it to end, or stop it (Ctrl-C) and resume it then"))
 
 
 def _check_options(samples: int, metric: str, scheduler: str, search: str,
@@ -310,6 +359,8 @@ def _run(spec: SweepSpec, sweep_dir: Path, drawn: space.Space, gpu: bool, addres
             states = tuning.trial_states(sweep_dir)
         finally:
             tuning.stop(started)
+            if (sweep_dir / SETTINGS).is_file():  # Ray has stopped writing: sign what it left
+                sweep_state.sign(sweep_dir, OWN)
     outcome = SweepOutcome(sweep_dir, spec, rows(spec, states))
     outcome.interrupted = len(states) < spec.samples or any(s.unfinished for s in states)
     outcome.signum = stop.signum or signal.SIGINT

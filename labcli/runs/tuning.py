@@ -332,8 +332,12 @@ def can_restore(sweep_dir: Path) -> bool:
 def restore_tuner(sweep_dir: Path, trial_resources: dict[str, float]) -> tune.Tuner:
     """The sweep's Tuner as Tune saved it, to go on with its unfinished trials (from their
     runs' checkpoints: `run_trial`) and the samples it had not started."""
-    return tune.Tuner.restore(str(sweep_dir), trainable(trial_resources),
-                              resume_unfinished=True, resume_errored=False)
+    try:
+        return tune.Tuner.restore(str(sweep_dir), trainable(trial_resources),
+                                  resume_unfinished=True, resume_errored=False)
+    except Exception as exc:  # Ray's own errors of a state it cannot read, of many kinds
+        raise LabError(f"{sweep_dir}'s Ray Tune state cannot be restored: {first_line(exc)}",
+                       "start the sweep again under a new --name") from None
 
 
 @dataclass
