@@ -634,8 +634,9 @@ class RobotTaskConfig(TaskConfig):
 
     robot: RobotDescription | None = Field(None, description="the robot's motors, gains and "
                                            "parts, written into the model; None: the MJCF's own")
-    root_body: str | None = Field(None, description="the floating base; None: the first body "
-                                  "with a free joint")
+    root_body: str | None = Field(None, description="the floating base (a body with a free "
+                                  "joint); None: the first such, if any (a planar or fixed "
+                                  "base has none)")
     default_pose: str | None = Field("home", description="the model's keyframe that resets "
                                      "start from (Isaac Lab's init_state); None: qpos0")
     # Concrete types: a run's params/env.yaml is read back into them. A subclass declares its own

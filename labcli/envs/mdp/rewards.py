@@ -198,7 +198,12 @@ def command_active(task: RobotTask, command, threshold: float) -> torch.Tensor:
 def _body(model: mujoco.MjModel, body: str | None) -> str:
     """`body`, checked; None: the root (the first body with a free joint)."""
     if body is None:
-        return names.all_names(model, "body")[int(model.jnt_bodyid[Robot._root_joint(model, None)])]
+        root = Robot._root_joint(model, None)
+        if root is None:
+            raise LabError(f"a term of the root body needs a floating base (a free joint), and "
+                           f"model '{names.model_name(model)}' has none",
+                           "name its body (body: NAME)")
+        return names.all_names(model, "body")[int(model.jnt_bodyid[root])]
     names.resolve_one(model, "body", body)
     return body
 

@@ -1,6 +1,8 @@
-"""Named views of a floating-base robot's state: the root body's pose and velocities, the
-actuated joints' positions, velocities and limits, in actuator order. Made once; `update()`
-recomputes the derived quantities in place after every change of the state."""
+"""Named views of a robot's state: the actuated joints' positions, velocities and limits, in
+actuator order, and, for a floating base (a free joint), the root body's pose and velocities.
+A planar base (Hopper's and Walker2d's slide and hinge joints) or a fixed one (an arm) has no
+root state: a term that reads it is one line saying so. Made once; `update()` recomputes the
+derived quantities in place after every change of the state."""
 
 from __future__ import annotations
 
@@ -12,6 +14,12 @@ from labcli.envs.sim import Sim
 from labcli.errors import LabError
 
 FREE = mujoco.mjtJoint.mjJNT_FREE
+# What only a floating base has (the private names: its rotation's entries, read by roll, pitch
+# and yaw).
+ROOT_STATE = frozenset({
+    "root_qpos", "root_qvel", "root_pos", "root_xy", "root_height", "root_quat",
+    "root_lin_vel_w", "root_ang_vel_b", "root_lin_vel_b", "rotation", "projected_gravity_b",
+    "forward_w", "forward_xy", "up_z", "_r00", "_r10", "_r20", "_r21"})
 
 
 def columns(state: torch.Tensor, addresses: list[int]) -> tuple[torch.Tensor, torch.Tensor | None]:
@@ -25,15 +33,37 @@ def columns(state: torch.Tensor, addresses: list[int]) -> tuple[torch.Tensor, to
 
 
 class Robot:
-    """The robot of a task: `root_*` views of its free joint's state, `joint_*` of the joints
-    its actuators drive. Positions in the world frame, `*_b` in the root body's frame."""
+    """The robot of a task: `joint_*` views of the joints its actuators drive and, with a
+    floating base, `root_*` views of its free joint's state. Positions in the world frame,
+    `*_b` in the root body's frame."""
 
     def __init__(self, sim: Sim, root_body: str | None = None, default_pose: str | None = None):
         model = self.model = sim.model
         self.sim = sim
         self.root_joint = self._root_joint(model, root_body)
-        self.root_body = int(model.jnt_bodyid[self.root_joint])
-        qa, da = int(model.jnt_qposadr[self.root_joint]), int(model.jnt_dofadr[self.root_joint])
+        self.floating = self.root_joint is not None
+        self._joints(sim, default_pose)
+        if self.floating:
+            self._root(sim, self.root_joint)
+        self._per_state: dict[object, torch.Tensor] = {}
+        self.update()
+
+    def __getattr__(self, name: str):
+        # Only for what the instance lacks: a floating base's state, read on another base.
+        if name in ROOT_STATE:
+            shown = name if name.startswith("root_") else "orientation"
+            raise LabError(f"a term reads the robot's {shown}, which needs a floating base (a "
+                           f"free joint), and model '{names.model_name(self.model)}' has none "
+                           "(its base is planar or fixed)",
+                           "use terms of its joints and actuators, or write the term for its "
+                           "base from task.sim's qpos and qvel (docs/plugins.md, 'Planar and "
+                           "fixed bases')")
+        raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
+
+    def _root(self, sim: Sim, joint: int) -> None:
+        model = sim.model
+        self.root_body = int(model.jnt_bodyid[joint])
+        qa, da = int(model.jnt_qposadr[joint]), int(model.jnt_dofadr[joint])
         self.root_qpos, self.root_qvel = slice(qa, qa + 7), slice(da, da + 6)
         self.root_pos = sim.qpos[:, qa:qa + 3]
         self.root_xy, self.root_height = self.root_pos[:, :2], self.root_pos[:, 2]
@@ -41,7 +71,30 @@ class Robot:
         # MuJoCo's free joint: linear velocity in the world frame, angular in the body's.
         self.root_lin_vel_w = sim.qvel[:, da:da + 3]
         self.root_ang_vel_b = sim.qvel[:, da + 3:da + 6]
+        n, dev, dtype = sim.num_envs, sim.qpos.device, sim.qpos.dtype
+        # Derived once per state (update()), from the root's rotation matrix R (world from
+        # body): its columns and rows are the axes and gravity, its entries the angles.
+        r = self.rotation = torch.empty(n, 3, 3, dtype=dtype, device=dev)
+        self._qq = torch.empty(n, 4, 4, dtype=dtype, device=dev)
+        self._qq_to_r = torch.as_tensor(math.QUAT_OUTER_TO_ROTATION, dtype=dtype, device=dev)
+        self.root_lin_vel_b = torch.empty(n, 3, dtype=dtype, device=dev)
+        self.projected_gravity_b = torch.empty(n, 3, dtype=dtype, device=dev)
+        self.forward_w = r[:, :, 0]  # the root's x axis in the world: a view of R
+        self.forward_xy = r[:, :2, 0]
+        # The root's z axis projected on the world's up (R22, -projected_gravity_b[:, 2]): the
+        # cosine of its tilt.
+        self.up_z = r[:, 2, 2]
+        self._r00, self._r10, self._r20, self._r21 = r[:, 0, 0], r[:, 1, 0], r[:, 2, 0], r[:, 2, 1]
+        # The views `update` reads and writes, taken once: each costs as much as an op on it.
+        q = self.root_quat
+        self._q_col, self._q_row = q[:, :, None], q[:, None, :]
+        self._qq_flat, self._r_flat = self._qq.view(n, 16), r.view(n, 9)
+        self._v_row = self.root_lin_vel_w[:, None, :]
+        self._v_b_row = self.root_lin_vel_b[:, None, :]
+        self._r_row2 = r[:, 2, :]
 
+    def _joints(self, sim: Sim, default_pose: str | None) -> None:
+        model = sim.model
         self.actuators = list(range(model.nu))
         joint_ids = []
         for a in self.actuators:
@@ -82,30 +135,6 @@ class Robot:
         self.gear = row(gear)
         self.gear_ratio_scaled = row(gear / gear.max())
 
-        n = sim.num_envs
-        # Derived once per state (update()), from the root's rotation matrix R (world from
-        # body): its columns and rows are the axes and gravity, its entries the angles.
-        r = self.rotation = torch.empty(n, 3, 3, dtype=dtype, device=dev)
-        self._qq = torch.empty(n, 4, 4, dtype=dtype, device=dev)
-        self._qq_to_r = torch.as_tensor(math.QUAT_OUTER_TO_ROTATION, dtype=dtype, device=dev)
-        self.root_lin_vel_b = torch.empty(n, 3, dtype=dtype, device=dev)
-        self.projected_gravity_b = torch.empty(n, 3, dtype=dtype, device=dev)
-        self.forward_w = r[:, :, 0]  # the root's x axis in the world: a view of R
-        self.forward_xy = r[:, :2, 0]
-        # The root's z axis projected on the world's up (R22, -projected_gravity_b[:, 2]): the
-        # cosine of its tilt.
-        self.up_z = r[:, 2, 2]
-        self._r00, self._r10, self._r20, self._r21 = r[:, 0, 0], r[:, 1, 0], r[:, 2, 0], r[:, 2, 1]
-        # The views `update` reads and writes, taken once: each costs as much as an op on it.
-        q = self.root_quat
-        self._q_col, self._q_row = q[:, :, None], q[:, None, :]
-        self._qq_flat, self._r_flat = self._qq.view(n, 16), r.view(n, 9)
-        self._v_row = self.root_lin_vel_w[:, None, :]
-        self._v_b_row = self.root_lin_vel_b[:, None, :]
-        self._r_row2 = r[:, 2, :]
-        self._per_state: dict[object, torch.Tensor] = {}
-        self.update()
-
     # The root's roll, pitch and yaw (rad; extrinsic x-y-z, as `math.quat_from_rpy`), from R
     # once per state when a term reads them: most tasks read one or none.
     @property
@@ -121,7 +150,9 @@ class Robot:
         return self.per_state("yaw", lambda: torch.atan2(self._r10, self._r00))
 
     @staticmethod
-    def _root_joint(model: mujoco.MjModel, root_body: str | None) -> int:
+    def _root_joint(model: mujoco.MjModel, root_body: str | None) -> int | None:
+        """The free joint of `root_body`, else the first free joint; None: a planar or fixed
+        base."""
         if root_body is not None:
             body = names.resolve_one(model, "body", root_body)
             joint = int(model.body_jntadr[body])
@@ -130,22 +161,23 @@ class Robot:
                                "free joint", "name the floating base as root_body")
             return joint
         free = [j for j in range(model.njnt) if model.jnt_type[j] == FREE]
-        if not free:
-            raise LabError(f"model '{names.model_name(model)}' has no free joint",
-                           "a robot task needs a floating base (<freejoint/> on its root body)")
-        return free[0]
+        return free[0] if free else None
 
     def update(self) -> None:
         if self._qidx is not None:
             torch.index_select(self.sim.qpos, 1, self._qidx, out=self.joint_pos)
         if self._didx is not None:
             torch.index_select(self.sim.qvel, 1, self._didx, out=self.joint_vel)
+        if self.floating:
+            self._update_root()
+        self.forget_derived()
+
+    def _update_root(self) -> None:
         torch.mul(self._q_col, self._q_row, out=self._qq)
         torch.matmul(self._qq_flat, self._qq_to_r, out=self._r_flat)
         # R^T v as v^T R: one batched product.
         torch.matmul(self._v_row, self.rotation, out=self._v_b_row)
         torch.neg(self._r_row2, out=self.projected_gravity_b)  # R^T (0, 0, -1)
-        self.forget_derived()
 
     def forget_derived(self) -> None:
         """Drop the values `per_state` cached: the next use computes them again."""
