@@ -198,6 +198,18 @@ def test_a_sweep_run_by_another_driver_is_not_resumed_beside_it(tmp_path):
                           "wait for it to end")
 
 
+def test_a_signing_key_that_cannot_be_made_is_one_line_before_any_trial(tmp_path):
+    pytest.importorskip("ray.tune")
+    (tmp_path / "not-a-dir").write_text("")
+    result = CliRunner().invoke(app, ["sweep", *SMALL, "--space", str(space_file(tmp_path, SPACE)),
+                                      "--samples", "2"],
+                                env={"LAB_LOGS_DIR": str(tmp_path / "l"), "COLUMNS": "250",
+                                     "LAB_CONFIG_DIR": str(tmp_path / "not-a-dir")})
+    assert_one_line_error(result, "the key that signs sweep state", "cannot be used",
+                          "LAB_CONFIG_DIR")
+    assert not (tmp_path / "l").exists()
+
+
 def test_without_ray_sweep_says_how_to_install_it(tmp_path, monkeypatch):
     for module in ("ray", "ray.tune"):
         monkeypatch.setitem(sys.modules, module, None)  # `import ray` fails as uninstalled

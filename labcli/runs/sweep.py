@@ -184,6 +184,7 @@ def sweep(task: str, framework: str, space_file: Path, *, samples: int,
         raise exists
     rundir.check_writable(sweep_dir.parent)
     require_ray(search)  # after the input's checks: those need no Ray
+    sweep_state.key()  # the key that signs its state when it stops: a problem with it, now
     spec = SweepSpec(task=the_plan.spec.name, framework=the_plan.framework.name,
                      space=files.load_yaml(files.read_text(space_file)), samples=samples,
                      metric=metric, scheduler=scheduler, search=search, fixed=fixed,
