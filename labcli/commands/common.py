@@ -63,7 +63,9 @@ FrameworkArg = Annotated[str, typer.Option("--framework", "-f", help="Learning l
                                            autocompletion=complete_framework)]
 RunOpt = Annotated[Path | None, typer.Option("--run", help="A run directory.")]
 LastOpt = Annotated[bool, typer.Option("--last", help="Newest run (the default).")]
-CheckpointOpt = Annotated[Path | None, typer.Option(help="A checkpoint file.")]
+CheckpointOpt = Annotated[Path | None, typer.Option(
+    help="A checkpoint file, or 'latest' or 'best' (the highest success, then return) of --run "
+    "or of the newest run.")]
 SetOpt = Annotated[list[str] | None, typer.Option(
     "--set", metavar="SECTION.KEY=VALUE",
     help="Override a setting: env.KEY=VALUE or agent.KEY=VALUE (repeatable).")]

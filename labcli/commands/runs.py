@@ -28,29 +28,34 @@ def runs(
     logs_dir: LogsDir = None,
 ) -> None:
     """List runs, newest first: task, framework, first start, steps, wall time over all
-    sessions, final mean return, success rate and state ("failed": it stopped on an error or died
+    sessions, final mean return, success rate, the best checkpoint's iteration and success (what
+    `--checkpoint best` picks) and state ("failed": it stopped on an error or died
     without a summary; "damaged": its files cannot be read, and a note says why).
 
     Example: lab runs --task cartpole --state finished
     """
     from rich.table import Column
 
-    from labcli.runs import rundir
+    from labcli.runs import checkpoints, rundir
 
     logs_dir = logs_dir or rundir.default_logs_dir()
     rows = rundir.table(logs_dir, task, framework, state)
+    best = [checkpoints.best_recorded(row.dir) for row in rows]
     if as_json:
-        out().print_json(json.dumps([row.as_dict() for row in rows]))
+        out().print_json(json.dumps([
+            {**row.as_dict(), "best_checkpoint": None if b is None else
+             {"iteration": b[0], **b[1]}} for row, b in zip(rows, best, strict=True)]))
         return
     shown = table(Column("started", no_wrap=True), "task", "framework", "name", "steps",
-                  "wall time", "return", "success", Column("state", no_wrap=True),
+                  "wall time", "return", "success", "best", Column("state", no_wrap=True),
                   title=f"{len(rows)} runs in {logs_dir}")
-    for row in rows:
+    for row, b in zip(rows, best, strict=True):
         shown.add_row(
             row.started.replace("T", " ")[:16], row.task, row.framework,
             rundir.run_name(row.dir), figure(row.steps, "{:,}"),
             figure(row.wall_time_s, "{:.1f} s"), figure(row.mean_return, "{:.1f}"),
-            figure(row.success_rate, "{:.0%}"), row.state)
+            figure(row.success_rate, "{:.0%}"),
+            "-" if b is None else f"{b[0]}: {b[1][checkpoints.SUCCESS]:.0%}", row.state)
     out().print(shown)
     for row in rows:
         if row.problem:

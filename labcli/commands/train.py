@@ -37,7 +37,8 @@ def train(
     set_: SetOpt = None,
     config_file: ConfigOpt = None,
     checkpoint: Annotated[str | None, typer.Option(
-        help="Resume from a checkpoint file, a run dir, or 'latest'.")] = None,
+        help="Resume from a checkpoint file, a run dir, 'latest' or 'best' (the highest "
+        "success, then return, of the newest run).")] = None,
     video: Annotated[bool, typer.Option("--video", help="Record env 0 as mp4.")] = False,
     video_length: VideoLengthOpt = 200,
     video_interval: Annotated[int, typer.Option(

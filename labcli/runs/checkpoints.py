@@ -25,6 +25,10 @@ from labcli.plugins.framework import Checkpoint, FrameworkSpec
 from labcli.runs import config, rundir
 
 LATEST = "latest"
+BEST = "best"
+# The figures a checkpoint's manifest records: of the episodes that ended since the checkpoint
+# before it, what `--checkpoint best` ranks by (success, then return).
+SUCCESS, RETURN, EPISODES = "success_rate", "mean_return", "episodes"
 MANIFEST_PREFIX = "checkpoint_"
 # SB3's .zip and torch.save's .pt are zip containers, whose checksums tell a damaged file.
 ZIP_SUFFIXES = (".zip", ".pt", ".pth")
@@ -39,12 +43,14 @@ def manifest_path(directory: Path, iteration: int) -> Path:
 
 def write(directory: Path, fw: FrameworkSpec, iteration: int, save: Callable[[Path], None],
           extra: Callable[[Path], None] | None = None,
-          check: Callable[[Path], None] | None = None, below: Path | None = None) -> Checkpoint:
+          check: Callable[[Path], None] | None = None, below: Path | None = None,
+          figures: dict[str, float] | None = None) -> Checkpoint:
     """Checkpoint `iteration` into `directory`: `save(path)` writes the framework's model at
     `path` (its final name, in a private staging directory) and any companions beside it;
     `extra(staging_dir)` adds lab's own files (the env state); `check(path)` may refuse the
     staged model by raising; then the set is published. Nothing is left behind when any of it
-    fails. `directory` is a run dir, or (with `below`, the run dir) a directory inside one."""
+    fails. `directory` is a run dir, or (with `below`, the run dir) a directory inside one.
+    `figures` (SUCCESS, RETURN, EPISODES) go into the manifest."""
     if below is not None:
         files.real_dir(directory, below=below)
     try:
@@ -62,7 +68,7 @@ def write(directory: Path, fw: FrameworkSpec, iteration: int, save: Callable[[Pa
                                    f"{model}")
             if check is not None:
                 check(model)
-            _publish(staging, directory, iteration, fw.name)
+            _publish(staging, directory, iteration, fw.name, figures)
         except (OSError, RuntimeError) as exc:
             # The staging dir is lab's own: gone, it was removed under lab, whatever the
             # library said of its missing file (`rm -rf` of the run dir empties it first).
@@ -84,7 +90,8 @@ def discard_staging(directory: Path) -> None:
         files.remove(path)
 
 
-def _publish(staging: Path, directory: Path, iteration: int, framework: str) -> None:
+def _publish(staging: Path, directory: Path, iteration: int, framework: str,
+             figures: dict[str, float] | None) -> None:
     entries = {}
     for path in sorted(staging.iterdir()):
         if path.is_symlink() or not path.is_file():
@@ -94,7 +101,8 @@ def _publish(staging: Path, directory: Path, iteration: int, framework: str) -> 
     for name in entries:
         (staging / name).chmod(files.FILE_MODE)
         (staging / name).replace(directory / name)
-    manifest = {"iteration": iteration, "framework": framework, "files": entries}
+    manifest = {"iteration": iteration, "framework": framework, "files": entries,
+                **({"figures": figures} if figures else {})}
     files.write_atomic(manifest_path(directory, iteration), json.dumps(manifest, indent=2) + "\n",
                        below=directory)
 
@@ -180,15 +188,70 @@ def latest_complete(fw: FrameworkSpec, run_dir: Path) -> Checkpoint | None:
     return None
 
 
+def recorded_figures(run_dir: Path, iteration: int) -> dict[str, float] | None:
+    """The figures checkpoint `iteration`'s manifest recorded, if it did and they are numbers."""
+    try:
+        figures = _read_manifest(manifest_path(run_dir, iteration)).get("figures")
+    except ValueError:
+        return None
+    if not isinstance(figures, dict) or not all(
+            isinstance(figures.get(k), (int, float)) and not isinstance(figures.get(k), bool)
+            for k in (SUCCESS, RETURN, EPISODES)) or figures[EPISODES] <= 0:
+        return None
+    return figures
+
+
+def _rank(figures: dict[str, float], iteration: int) -> tuple[float, float, int]:
+    return figures[SUCCESS], figures[RETURN], iteration
+
+
+def best_recorded(run_dir: Path) -> tuple[int, dict[str, float]] | None:
+    """The iteration and figures of the best checkpoint `run_dir`'s manifests record (read,
+    not verified: what `lab runs` shows)."""
+    recorded = []
+    for path in run_dir.glob(f"{MANIFEST_PREFIX}*.json"):
+        number = path.stem.removeprefix(MANIFEST_PREFIX)
+        figures = recorded_figures(run_dir, int(number)) if number.isdigit() else None
+        if figures is not None:
+            recorded.append((_rank(figures, int(number)), int(number), figures))
+    return max(recorded)[1:] if recorded else None
+
+
+def best_complete(fw: FrameworkSpec, run_dir: Path) -> Checkpoint | None:
+    """The complete checkpoint in `run_dir` whose recorded figures are best: the highest
+    success rate, then the highest return, then the newest."""
+    ranked = []
+    for found in fw.checkpoints(run_dir):
+        figures = recorded_figures(run_dir, found.iteration)
+        if figures is not None:
+            ranked.append((_rank(figures, found.iteration), found))
+    for _, found in sorted(ranked, key=lambda item: item[0], reverse=True):
+        if complete(fw, found):
+            return found
+    return None
+
+
+def pick(word: str, run: rundir.Run, fw: FrameworkSpec) -> Checkpoint:
+    """`latest` or `best` of `run`, or a LabError saying why it has none."""
+    found = (latest_complete if word == LATEST else best_complete)(fw, run.dir)
+    if found is not None:
+        return found
+    if word == BEST and latest_complete(fw, run.dir) is not None:
+        raise LabError(f"no checkpoint of run {run.dir} recorded its success and return (lab "
+                       "records them with each checkpoint it writes now; this run's are older)",
+                       "pass --checkpoint latest, or a checkpoint file")
+    raise LabError(f"run {run.dir} holds no complete {fw.name} checkpoint",
+                   "train first, or pass --checkpoint PATH")
+
+
 def find(value: str, logs_dir: Path, task: str, fw: FrameworkSpec) -> tuple[rundir.Run,
                                                                             Checkpoint]:
-    """`latest` (newest complete checkpoint of the newest run of task+framework) or a path; a
-    run dir gives its newest complete checkpoint."""
-    if value == LATEST:
+    """`latest` or `best` (of the newest run of task+framework that has a complete checkpoint)
+    or a path; a run dir gives its newest complete checkpoint."""
+    if value in (LATEST, BEST):
         for run in rundir.find(logs_dir, task, fw.name):
-            found = latest_complete(fw, run.dir)
-            if found is not None:
-                return run, found
+            if latest_complete(fw, run.dir) is not None:
+                return run, pick(value, run, fw)
         raise LabError(f"no complete checkpoint of a {fw.name} run of '{task}' in {logs_dir}",
                        "train first, or pass --checkpoint PATH")
     path = Path(value)
@@ -201,7 +264,8 @@ def find(value: str, logs_dir: Path, task: str, fw: FrameworkSpec) -> tuple[rund
                            f"expected files like {fw.checkpoint_path(path, 100).name}")
         return rundir.open_run(path), found
     if not path.is_file():
-        raise LabError(f"checkpoint {path} does not exist", "pass a file, a run dir or 'latest'")
+        raise LabError(f"checkpoint {path} does not exist",
+                       "pass a file, a run dir, 'latest' or 'best'")
     match = [c for c in fw.checkpoints(path.parent) if c.path.name == path.name]
     if not match:
         raise LabError(f"{path.name} is not a {fw.name} checkpoint name",

@@ -6,6 +6,7 @@ SIGINT/SIGTERM into a stop at the next env step (`StopAtRequest`)."""
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
@@ -89,6 +90,7 @@ class RunContext(TrainContext):
     iteration: int = 0
     steps: int = 0
     last_stats: dict[str, float] = field(default_factory=dict)
+    _since_save: EpisodesSinceSave = field(default_factory=lambda: EpisodesSinceSave())
     saved_iteration: int = -1
     saved_steps: int = 0
     # The env and random generators at the end of the last iteration, saved with its checkpoint.
@@ -144,6 +146,7 @@ class RunContext(TrainContext):
         stats = self.env.pop_stats(self._summed if self.ranks.active else None)
         if stats:
             self.last_stats = stats
+            self._since_save.add(stats)
         bad = stats.get(metrics.NONFINITE_ACTIONS, 0)
         if bad:  # the candidate, which acted in this rollout, is bad
             raise self._diverged(iteration, "the policy emitted non-finite actions (NaN or inf) "
@@ -243,7 +246,7 @@ class RunContext(TrainContext):
         if self.ranks.writer:
             state = snapshot.writer(self.iteration, boundary) if boundary is not None else None
             checkpoints.write(self.run_dir, self.framework.spec, self.iteration, save, state,
-                              check=self._check_policy)
+                              check=self._check_policy, figures=self._since_save.pop())
         self.saved_iteration, self.saved_steps = self.iteration, self.steps
 
     def _with_every_rank(self, boundary: dict[str, Any] | None) -> dict[str, Any] | None:
@@ -301,6 +304,30 @@ class RunContext(TrainContext):
         if not found:
             return "No checkpoint was written before it."
         return f"The last good checkpoint is {found[-1].path.name}."
+
+
+class EpisodesSinceSave:
+    """The episodes that ended since the last checkpoint: their count, mean success and mean
+    return, which the next checkpoint records (`--checkpoint best` ranks by them). Over the
+    whole interval, not the last iteration's few episodes."""
+
+    def __init__(self) -> None:
+        self.count = self.successes = self.returns = 0.0
+
+    def add(self, stats: Mapping[str, float]) -> None:
+        n = stats.get(metrics.EPISODES, 0.0)
+        self.count += n
+        self.successes += n * stats.get(metrics.SUCCESS_RATE, 0.0)
+        self.returns += n * stats.get(metrics.MEAN_RETURN, 0.0)
+
+    def pop(self) -> dict[str, float] | None:
+        figures = None
+        if self.count > 0 and math.isfinite(self.returns):
+            figures = {checkpoints.SUCCESS: self.successes / self.count,
+                       checkpoints.RETURN: self.returns / self.count,
+                       checkpoints.EPISODES: self.count}
+        self.count = self.successes = self.returns = 0.0
+        return figures
 
 
 def _finite(module: nn.Module) -> bool:

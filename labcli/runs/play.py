@@ -59,7 +59,9 @@ def load(*, run_dir: Path | None = None, checkpoint: Path | None = None,
     if num_envs is not None and num_envs <= 0:
         raise LabError(f"--num-envs must be a positive integer, got {num_envs}")
     logs_dir = logs_dir or rundir.default_logs_dir()
-    if checkpoint is not None:
+    # `latest` or `best`: of --run's run, else of the newest run.
+    word = str(checkpoint) if str(checkpoint) in (checkpoints.LATEST, checkpoints.BEST) else None
+    if checkpoint is not None and word is None:
         run = rundir.open_run(checkpoint.parent if checkpoint.is_file() else checkpoint)
     elif run_dir is not None:
         run = rundir.open_run(run_dir)
@@ -72,7 +74,10 @@ def load(*, run_dir: Path | None = None, checkpoint: Path | None = None,
         Console(stderr=True, markup=False).print(f"warning: {warning}", highlight=False,
                                                  soft_wrap=True)
     fw_spec = registry.get_framework(framework_name)
-    _, ckpt = checkpoints.find(str(checkpoint or run.dir), logs_dir, spec.name, fw_spec)
+    if word is not None:
+        ckpt = checkpoints.pick(word, run, fw_spec)
+    else:
+        _, ckpt = checkpoints.find(str(checkpoint or run.dir), logs_dir, spec.name, fw_spec)
     saved = run.params(rundir.ENV_PARAMS)
     given = _play_settings(spec, overrides, saved)
     config.check_saved(spec.config_class, "env", run.dir / rundir.ENV_PARAMS, saved, [given])

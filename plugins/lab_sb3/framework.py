@@ -8,6 +8,7 @@ model is rebuilt from the run's agent config instead, and only the zip's tensors
 
 from __future__ import annotations
 
+import contextlib
 import copy
 import io
 import json
@@ -133,8 +134,13 @@ class Sb3Framework(Framework):
                             callback=callback, reset_num_timesteps=ctx.resume is None,
                             progress_bar=False)
                 callback.end_iteration()  # the last update has no next rollout start
-        finally:
-            model.logger.close()  # its TensorBoard writer holds a file of the run dir open
+        except BaseException:
+            # The error in flight says what went wrong (a run dir deleted under lab: one line);
+            # the TensorBoard writer re-raises its own copy of it on close, which would replace it.
+            with contextlib.suppress(OSError):
+                model.logger.close()
+            raise
+        model.logger.close()  # its TensorBoard writer holds a file of the run dir open
 
     def load_policy(self, checkpoint: Path, env: Any, cfg: Sb3PPOConfig) -> Policy:
         policy = ActorCriticPolicy(env.single_observation_space, env.single_action_space,
