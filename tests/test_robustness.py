@@ -532,23 +532,29 @@ def test_a_run_dir_deleted_while_training_ends_it_in_one_line_and_stays_deleted(
     assert "no longer exists" in err and not run_dir.exists()
 
 
-@pytest.mark.parametrize("when", ["after the model", "before the model"])
+@pytest.mark.parametrize("when", ["after the model", "before the model", "while checked"])
 def test_a_checkpoint_deleted_while_it_is_written_is_said_as_a_deleted_run(tmp_path, when):
     # The races the test above can hit: rm has emptied the staging directory, not yet the run
-    # dir, when lab looks for the model it was handed, or when the library writes it.
+    # dir, when lab looks for the model it was handed, when the library writes it, or when
+    # lab reads it back to check it (sb3's reader: "not a loadable SB3 model").
     run_dir = tmp_path / "run"
     run_dir.mkdir()
     fw = registry.get_framework("rsl_rl")
 
     def save(path):
-        if when == "after the model":
+        if when != "before the model":
             path.write_bytes(b"model")
-        shutil.rmtree(path.parent)
+        if when != "while checked":
+            shutil.rmtree(path.parent)
         if when == "before the model":
             path.write_bytes(b"model")  # FileNotFoundError, as torch.save's own
 
+    def check(path):
+        shutil.rmtree(path.parent)
+        raise LabError(f"checkpoint {path} is not a loadable model: cannot be opened")
+
     with pytest.raises(LabError, match="no longer exists: it was deleted or moved"):
-        checkpoints.write(run_dir, fw, 1, save)
+        checkpoints.write(run_dir, fw, 1, save, check=check if when == "while checked" else None)
     assert list(run_dir.iterdir()) == []
 
 

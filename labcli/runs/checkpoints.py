@@ -69,11 +69,14 @@ def write(directory: Path, fw: FrameworkSpec, iteration: int, save: Callable[[Pa
             if check is not None:
                 check(model)
             _publish(staging, directory, iteration, fw.name, figures)
-        except (OSError, RuntimeError) as exc:
+        except (OSError, RuntimeError, LabError) as exc:
             # The staging dir is lab's own: gone, it was removed under lab, whatever the
-            # library said of its missing file (`rm -rf` of the run dir empties it first).
+            # library (or the check reading the model back) said of its missing file (`rm -rf`
+            # of the run dir empties it first).
             if not staging.is_dir():
                 raise files.deleted(below or directory) from exc
+            if isinstance(exc, LabError):
+                raise
             error = files.failed_write(fw.checkpoint_path(directory, iteration), exc,
                                        root=below or directory)
             if error is None:
