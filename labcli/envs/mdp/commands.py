@@ -53,6 +53,8 @@ class UniformVelocityCommand:
         # The error averaged over cfg.error_window s, and its weight on each new step's error.
         self.window = cfg.error_window > 0.0
         self.averaged_error = like.new_zeros(n, 3)
+        self._averaged_lin = self.averaged_error[:, :2]
+        self._averaged_yaw = self.averaged_error[:, 2]
         self._new_weight = min(1.0, task.step_dt / cfg.error_window) if self.window else 1.0
         # Views taken once: each step reads them, and indexing costs as much as an op.
         self._lin_xy, self._yaw_rate = self.command[:, :2], self.command[:, 2]
@@ -88,9 +90,9 @@ class UniformVelocityCommand:
 
     def after_step(self) -> None:
         if self.window:
-            error = torch.cat((self.lin_vel_error(), self.yaw_rate_error()[:, None]), dim=1)
-            self.averaged_error.lerp_(error, self._new_weight)
-            lin, yaw = self.averaged_error[:, :2], self.averaged_error[:, 2]
+            lin, yaw = self._averaged_lin, self._averaged_yaw
+            lin.lerp_(self.lin_vel_error(), self._new_weight)
+            yaw.lerp_(self.yaw_rate_error(), self._new_weight)
         else:
             lin, yaw = self.lin_vel_error(), self.yaw_rate_error()
         self._errors_lin.add_(torch.linalg.vector_norm(lin, dim=1))
