@@ -70,6 +70,16 @@ def test_agent_config_maps_onto_the_runner_schema():
     assert out["obs_groups"] == {"actor": [OBS_GROUP], "critic": [OBS_GROUP]}
 
 
+def test_the_kl_target_grows_with_the_ranks_unless_told_not_to():
+    def target(world_size: int, **settings) -> float | None:
+        return runner_config(RslRlPpoConfig(**settings), world_size)["algorithm"]["desired_kl"]
+
+    assert target(1, desired_kl=0.01) == 0.01
+    assert target(2, desired_kl=0.01) == 0.02 and target(4, desired_kl=0.01) == 0.04
+    assert target(4, desired_kl=0.01, kl_grows_with_ranks=False) == 0.01
+    assert target(4, desired_kl=None) is None  # no adaptive learning rate: nothing to scale
+
+
 def test_adapter_shapes_dtypes_and_time_outs():
     env = RslRlVecEnv(make_env(episode_length_s=0.1))  # 5 steps of 0.02 s
     assert env.num_envs == NUM_ENVS and env.num_actions == 1 and env.max_episode_length == 5

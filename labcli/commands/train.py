@@ -46,7 +46,8 @@ def train(
     logs_dir: LogsDir = None,
     nproc: Annotated[int | None, typer.Option(
         help="Data-parallel ranks on this host, each with --num-envs envs (rsl_rl, skrl): "
-             "the batch grows with the ranks, the other settings stay; the same as torchrun "
+             "the batch grows with the ranks, and so does rsl_rl's KL target "
+             "(agent.kl_grows_with_ranks); the same as torchrun "
              "--nproc-per-node N -m labcli train ... (docs/scale.md)")] = None,
     nnodes: Annotated[str | None, typer.Option(
         help="With --nproc: hosts taking part, N or MIN:MAX (run the command on each).")] = None,

@@ -32,8 +32,9 @@ INFO_KEYS = {"observation_size", "action_size", "actor"}
 MODEL, DISTRIBUTION = "MLPModel", "GaussianDistribution"  # the classes this plugin writes
 
 
-def runner_config(cfg: RslRlPpoConfig) -> dict[str, Any]:
-    """The OnPolicyRunner config dict (5.x schema: `actor`, `critic`, `algorithm`, `obs_groups`)."""
+def runner_config(cfg: RslRlPpoConfig, world_size: int = 1) -> dict[str, Any]:
+    """The OnPolicyRunner config dict (5.x schema: `actor`, `critic`, `algorithm`, `obs_groups`)
+    for a run of `world_size` data-parallel ranks."""
     norm = cfg.empirical_normalization
     return {
         "num_steps_per_env": cfg.num_steps_per_env,
@@ -56,7 +57,7 @@ def runner_config(cfg: RslRlPpoConfig) -> dict[str, Any]:
         "algorithm": {
             "class_name": "lab_rsl_rl.ppo:LabPPO", "cuda_graph": cfg.cuda_graph,
             "learning_rate": cfg.learning_rate, "schedule": cfg.schedule,
-            "desired_kl": cfg.desired_kl, "num_learning_epochs": cfg.num_learning_epochs,
+            "desired_kl": cfg.kl_target(world_size), "num_learning_epochs": cfg.num_learning_epochs,
             "num_mini_batches": cfg.num_mini_batches, "gamma": cfg.gamma, "lam": cfg.lam,
             "clip_param": cfg.clip_param, "entropy_coef": cfg.entropy_coef,
             "value_loss_coef": cfg.value_loss_coef,
@@ -107,7 +108,7 @@ class LabRunner(OnPolicyRunner):
     def __init__(self, env: RslRlVecEnv, cfg: RslRlPpoConfig, ctx: TrainContext):
         self._ranks = ctx.rank, ctx.world_size  # for _configure_multi_gpu, called by __init__
         with contextlib.redirect_stdout(io.StringIO()):  # it prints both models; lab has a bar
-            super().__init__(env, runner_config(cfg), log_dir=str(ctx.run_dir),
+            super().__init__(env, runner_config(cfg, ctx.world_size), log_dir=str(ctx.run_dir),
                              device=ctx.device)
         self.ctx = ctx
         self.alg.update_threads = ctx.update_threads
