@@ -29,6 +29,7 @@ LAUNCH_OPTIONS = ("--nproc", "--nnodes", "--rdzv-endpoint", "--rdzv-id")
 SHUTDOWN_TIMEOUT_S = 300
 # The c10d rendezvous, under a name of lab's (`_register_rendezvous`).
 RENDEZVOUS = "lab-c10d"
+PARENT_LOGGER = "torch.distributed.elastic"
 # How long a host tries to reach the rendezvous's store (another host may not have started it
 # yet), and how long more it waits for the store to answer once connected.
 STORE_TIMEOUT_S = 60
@@ -106,8 +107,7 @@ def launch(launch: Launch, argv: Sequence[str], console: Console) -> int:
         # torchrun's --standalone: a rendezvous on a free local port.
         rdzv_endpoint="localhost:0" if one_host else launch.rdzv_endpoint or "",
         rdzv_configs={"read_timeout": STORE_TIMEOUT_S}, max_restarts=0, **later)
-    # The agent logs every worker it starts and stops; a failure is said below in one line.
-    logging.getLogger("torch.distributed.elastic").setLevel(logging.CRITICAL)
+    _quiet_elastic_agent()
     launched = os.environ.get(ranks.LAUNCHED)
     os.environ[ranks.LAUNCHED] = "1"  # inherited by the ranks
     try:
@@ -171,6 +171,15 @@ def _rendezvous_handler(params: Any) -> Any:
     backend, store = made
     params.backend = backend.name  # c10d's rendezvous, which checks that it was asked for
     return create_handler(store, backend, params)
+
+
+def _quiet_elastic_agent() -> None:
+    """The agent logs every worker it starts and stops, and a Ctrl-C as a "death signal"; a
+    failure is said in one line by lab. torch's elastic modules each set their own logger's
+    level (LOGLEVEL, else WARNING), so the parent logger's level alone does not reach them."""
+    loggers = logging.root.manager.loggerDict
+    for name in [PARENT_LOGGER, *(n for n in loggers if n.startswith(PARENT_LOGGER + "."))]:
+        logging.getLogger(name).setLevel(logging.CRITICAL)
 
 
 def _register_rendezvous() -> None:
