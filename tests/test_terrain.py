@@ -1,0 +1,189 @@
+"""The terrain generator (labcli/envs/mdp/terrain.py, terrain_model.py) on real MuJoCo: the
+config's checks, the columns' shares, the same geometry from the same seed, each patch's start
+point and the stairs' and slopes' heights against MuJoCo's own ray casting, the height map
+against the rays, and a Go1 dropped on the hardest patch of each type standing on it."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import mujoco
+import numpy as np
+import pytest
+from pydantic import ValidationError
+
+from labcli.envs.mdp import terrain as t
+from labcli.envs.mdp import terrain_model as tm
+
+GO1 = Path(__file__).parents[1] / "tasks" / "lab_locomotion" / "go1.xml"
+
+
+def _small(**changes) -> t.TerrainConfig:
+    """Every type once, 3 rows of 4 m patches: small enough to build in a blink."""
+    cfg = t.TerrainConfig(size=4.0, rows=3, cols=8, border=1.0, types={
+        "flat": t.Flat(platform=1.0),
+        "stairs": t.PyramidStairs(platform=1.0, step_height=(0.05, 0.15)),
+        "stairs_down": t.PyramidStairs(platform=1.0, step_height=(0.05, 0.15), inverted=True),
+        "slope": t.PyramidSlope(platform=1.0, slope=(0.1, 0.3)),
+        "rough": t.RandomRough(platform=1.0),
+        "waves": t.Wave(platform=1.0, waves=2),
+        "obstacles": t.DiscreteObstacles(platform=1.0, count=5, width=(0.3, 0.8)),
+        "stones": t.SteppingStones(platform=1.0),
+    })
+    return cfg.model_copy(update=changes)
+
+
+def _build(cfg: t.TerrainConfig) -> tuple[mujoco.MjModel, tm.Terrain]:
+    spec = mujoco.MjSpec.from_file(str(GO1))
+    terrain = tm.apply(spec, cfg)
+    return spec.compile(), terrain
+
+
+def _ray_heights(model: mujoco.MjModel, points: np.ndarray) -> np.ndarray:
+    """The terrain's surface under each (x, y), by MuJoCo's ray casting from 10 m up."""
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    terrain = model.body(tm.BODY).id
+    geom = np.zeros(1, np.int32)
+    out = []
+    for x, y in points:
+        # Static geoms only (flg_static), the robot's excluded by body: its trunk is at x = y = 0.
+        dist = mujoco.mj_ray(model, data, np.array([x, y, 10.0]), np.array([0.0, 0.0, -1.0]),
+                             None, 1, model.body("trunk").id, geom)
+        assert dist >= 0 and model.geom_bodyid[geom[0]] == terrain, (x, y)
+        out.append(10.0 - dist)
+    return np.array(out)
+
+
+def test_the_config_says_what_does_not_fit():
+    with pytest.raises(ValidationError, match="whole number"):
+        _small(size=4.05).model_validate(_small(size=4.05).model_dump())
+    with pytest.raises(ValidationError, match="at least as many columns"):
+        t.TerrainConfig.model_validate({**_small().model_dump(), "cols": 3})
+    with pytest.raises(ValidationError, match="platform 5.0 m does not fit"):
+        t.TerrainConfig.model_validate({**_small().model_dump(),
+                                        "types": {"flat": {"type": "flat", "platform": 5.0}}})
+    with pytest.raises(ValidationError, match="type"):  # an unknown type names the known ones
+        t.TerrainConfig.model_validate({**_small().model_dump(),
+                                        "types": {"ice": {"type": "ice"}}})
+
+
+def test_the_columns_are_shared_by_proportion():
+    columns = t.rough().columns()
+    assert len(columns) == 20
+    counts = {name: columns.count(name) for name in t.rough().types}
+    assert counts == {"flat": 4, "stairs": 4, "stairs_down": 4, "slope": 2, "slope_down": 2,
+                      "rough": 2, "waves": 2}
+    assert columns == sorted(columns, key=list(t.rough().types).index)  # each type together
+    # Every type keeps a column, however small its share.
+    tiny = t.TerrainConfig(cols=3, types={"a": t.Flat(proportion=100), "b": t.Flat(
+        proportion=0.01), "c": t.Wave(proportion=0.01)})
+    assert tiny.columns() == ["a", "b", "c"]
+
+
+def test_the_same_seed_builds_the_same_terrain_and_another_seed_another():
+    a, _ = _build(_small())
+    b, _ = _build(_small())
+    c, _ = _build(_small(seed=1))
+    assert np.array_equal(a.hfield_data, b.hfield_data)
+    assert np.array_equal(a.geom_pos, b.geom_pos) and np.array_equal(a.geom_size, b.geom_size)
+    assert not np.array_equal(a.hfield_data, c.hfield_data)  # rough, obstacles: drawn
+
+
+def test_the_ground_plane_gives_way_to_the_terrain_with_its_contact_settings():
+    model, _ = _build(_small())
+    planes = [g for g in range(model.ngeom) if model.geom_type[g] == mujoco.mjtGeom.mjGEOM_PLANE]
+    assert planes == []
+    floor = mujoco.MjModel.from_xml_path(str(GO1)).geom("floor")
+    terrain = [g for g in range(model.ngeom) if model.geom_bodyid[g] == model.body(tm.BODY).id]
+    assert len(terrain) > 8
+    for g in terrain:
+        assert model.geom_contype[g] == floor.contype and model.geom_conaffinity[g] == \
+            floor.conaffinity
+        assert np.array_equal(model.geom_friction[g], floor.friction)
+    assert model.body(tm.BODY).mass == 0
+
+
+def test_every_start_point_is_on_the_surface_mujoco_sees():
+    cfg = _small()
+    model, terrain = _build(cfg)
+    assert terrain.origins.shape == (3, 8, 3)
+    assert terrain.columns == list(cfg.types)
+    assert np.allclose(terrain.difficulty[:, 0], [0.0, 0.5, 1.0])
+    # Rows along x, columns along y, the grid centred on the origin.
+    assert np.allclose(terrain.origins[:, 0, 0], [-4.0, 0.0, 4.0])
+    assert np.allclose(terrain.origins[0, :, 1], np.arange(8) * 4.0 - 14.0)
+    rays = _ray_heights(model, terrain.origins[..., :2].reshape(-1, 2))
+    assert np.allclose(rays, terrain.origins[..., 2].ravel(), atol=1e-9)
+
+
+def test_stairs_rise_and_fall_by_a_step_each_tread():
+    cfg = _small()
+    model, terrain = _build(cfg)
+    row = 2  # difficulty 1: steps of 0.15 m
+    for col, sign in ((1, 1), (2, -1)):  # stairs up, stairs down
+        x0, y0, top = terrain.origins[row, col]
+        # From the flat edge to the platform: treads 0.3 m wide, sampled mid-tread.
+        edge = 2.0 - tm.FLAT_EDGE
+        steps = int((edge - 0.5) / 0.3)
+        points = [(x0 + edge - (i + 0.5) * 0.3, y0) for i in range(steps)]
+        assert np.allclose(_ray_heights(model, np.array(points)),
+                           sign * 0.15 * np.arange(1, steps + 1), atol=1e-9)
+        assert top == pytest.approx(sign * 0.15 * steps)
+        assert _ray_heights(model, np.array([(x0 + 1.95, y0)]))[0] == pytest.approx(0.0)
+
+
+def test_a_slope_rises_as_its_config_says():
+    cfg = _small()
+    model, terrain = _build(cfg)
+    x0, y0, top = terrain.origins[2, 3]  # slope 0.3 at difficulty 1
+    run = 2.0 - tm.FLAT_EDGE - 0.5
+    assert top == pytest.approx(0.3 * run, abs=cfg.vertical_scale)
+    # Half-way down the slope, on a height-field point: half the rise.
+    heights = _ray_heights(model, np.array([(x0 + 0.5 + run / 2, y0)]))
+    assert heights[0] == pytest.approx(top / 2, abs=cfg.vertical_scale)
+
+
+def test_the_height_map_is_what_the_rays_see():
+    cfg = _small()
+    model, _ = _build(cfg)
+    heights, (x0, x1, y0, y1) = tm.height_map(model, cfg.horizontal_scale)
+    assert (x0, x1, y0, y1) == (-7.0, 7.0, -17.0, 17.0)  # the grid and its 1 m border
+    assert not np.isnan(heights).any()
+    rng = np.random.default_rng(0)
+    # Sample points on the height fields' own grid (between them MuJoCo interpolates).
+    iy, ix = rng.integers(0, heights.shape[0], 200), rng.integers(0, heights.shape[1], 200)
+    xs = x0 + (ix + 0.5) * cfg.horizontal_scale
+    ys = y0 + (iy + 0.5) * cfg.horizontal_scale
+    rays = _ray_heights(model, np.stack([xs, ys], axis=1))
+    close = np.abs(rays - heights[iy, ix]) < 0.02
+    assert close.mean() > 0.9, np.abs(rays - heights[iy, ix]).max()
+
+
+def test_a_go1_stands_on_the_hardest_patch_of_each_type():
+    cfg = _small()
+    model, terrain = _build(cfg)
+    data = mujoco.MjData(model)
+    home = model.key("home")
+    feet = {model.geom(f"{leg}_foot").id for leg in ("FL", "FR", "RL", "RR")}
+    ground = model.body(tm.BODY).id
+    for col, name in enumerate(terrain.columns):
+        mujoco.mj_resetDataKeyframe(model, data, home.id)
+        x, y, z = terrain.origins[-1, col]
+        data.qpos[:3] = (x, y, z + home.qpos[2] + 0.02)
+        for _ in range(round(1.0 / model.opt.timestep)):  # the standing pose held
+            mujoco.mj_step(model, data)
+        # On its feet on the terrain, neither through it nor fallen.
+        assert data.qpos[2] - z == pytest.approx(home.qpos[2], abs=0.05), name
+        touching = {int(g) for c in data.contact[:data.ncon] for g in c.geom
+                    if model.geom_bodyid[c.geom[0]] == ground
+                    or model.geom_bodyid[c.geom[1]] == ground}
+        assert touching & feet == feet, name
+
+
+def test_a_preview_is_written(tmp_path):
+    cfg = _small()
+    model, terrain = _build(cfg)
+    out = tmp_path / "terrain.png"
+    tm.save_preview(model, terrain, cfg, out)
+    assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and out.stat().st_size > 10_000
