@@ -5,11 +5,13 @@ against the rays, and a Go1 dropped on the hardest patch of each type standing o
 
 from __future__ import annotations
 
+import importlib.util
 from pathlib import Path
 
 import mujoco
 import numpy as np
 import pytest
+import torch
 from pydantic import ValidationError
 
 from labcli.envs.mdp import terrain as t
@@ -187,3 +189,155 @@ def test_a_preview_is_written(tmp_path):
     out = tmp_path / "terrain.png"
     tm.save_preview(model, terrain, cfg, out)
     assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and out.stat().st_size > 10_000
+
+
+# The terrain in a task: start points, the height scan, the curriculum -------------------------
+TERRAIN = {"size": 4.0, "rows": 3, "cols": 2, "border": 1.0, "max_start_level": 1, "types": {
+    "flat": {"type": "flat", "platform": 1.0},
+    "stairs": {"type": "pyramid_stairs", "platform": 1.0, "step_height": [0.1, 0.2]}}}
+
+
+def _go1_on_terrain(n: int = 8, **changes):
+    import json
+
+    from labcli.gym import make_env
+
+    env = make_env("go1-flat", num_envs=n, seed=0, overrides=[
+        "env.observation_noise=false", "env.terrain=" + json.dumps({**TERRAIN, **changes})])
+    env.reset()
+    return env
+
+
+def test_robots_start_on_their_patches_of_the_levels_they_may_start_on():
+    env = _go1_on_terrain()
+    grid, robot = env.task.terrain, env.task.robot
+    # Types spread evenly over the envs; new envs on levels 0 to max_start_level.
+    assert grid.types.tolist() == [0, 0, 0, 0, 1, 1, 1, 1]
+    assert set(grid.levels.tolist()) <= {0, 1}
+    origin = grid.origins[grid.levels, grid.types]
+    # Stairs of 4 steps, 0.1 m at level 0 to 0.2 m at level 2.
+    assert origin[:, 2].tolist() == pytest.approx([
+        0.0 if ty == 0 else 0.4 + 0.2 * lv for lv, ty in zip(grid.levels.tolist(),
+                                                              grid.types.tolist(), strict=True)])
+    # go1-flat's reset moves the root up to 0.5 m in x and y from the start point.
+    offset = robot.root_pos[:, :2] - origin[:, :2]
+    assert offset.abs().max() <= 0.5
+    home = env.task.model.key("home").qpos[2]
+    assert torch.allclose(robot.root_pos[:, 2], origin[:, 2] + home)
+
+
+def test_the_height_scan_is_what_mujocos_rays_see():
+    from labcli.envs.mdp import config as c
+    from labcli.envs.mdp import observations as o
+
+    env = _go1_on_terrain()
+    task = env.task
+    scan_cfg = c.HeightScan()
+    scan = o.height_scan(task, scan_cfg)
+    assert len(scan.names) == 187 and scan.names[0] == "-0.80,-0.50"
+    values = scan()
+    # The same points by hand: the grid turned by each base's yaw, rays from 10 m up in a copy
+    # of the model without the robot in the way.
+    model = task.model
+    data = mujoco.MjData(model)
+    data.qpos[2] = -50.0  # the robot far below the terrain
+    mujoco.mj_forward(model, data)
+    xs = np.linspace(-0.8, 0.8, 17)
+    ys = np.linspace(-0.5, 0.5, 11)
+    px, py = np.meshgrid(xs, ys)
+    agree = []
+    for env_id in range(task.num_envs):
+        x0, y0, z0 = task.robot.root_pos[env_id].tolist()
+        yaw = float(task.robot.yaw[env_id])
+        wx = x0 + np.cos(yaw) * px - np.sin(yaw) * py
+        wy = y0 + np.sin(yaw) * px + np.cos(yaw) * py
+        hits = _ray_heights(model, np.stack([wx.ravel(), wy.ravel()], axis=1))
+        expected = z0 - hits - 0.5
+        agree.append(np.abs(values[env_id].numpy() - expected) < 1e-6)
+    # Nearest on a 5 cm map: only points within a few centimetres of a stair's edge differ.
+    assert np.mean(agree) > 0.95, np.mean(agree)
+
+
+def test_the_curriculum_moves_envs_up_and_down_as_legged_gym_does():
+    env = _go1_on_terrain()
+    task = env.task
+    grid = task.terrain
+    command = task.command("base_velocity").command
+    grid.levels.copy_(torch.tensor([0, 1, 1, 2, 0, 1, 2, 2]))
+    # Far (more than half a 4 m patch), little for the command, enough, far from the top level.
+    grid.walked.copy_(torch.tensor([2.5, 0.5, 1.9, 2.5, 0.1, 1.2, 0.1, 2.5]))
+    command.zero_()
+    command[:, 0] = torch.tensor([1.0, 1.0, 0.1, 1.0, 0.0, 0.1, 1.0, 0.1])
+    # 20 s episodes: half the commanded distance is 10 m at 1 m/s, 1 m at 0.1 m/s.
+    task.rng.manual_seed(0)
+    mask = torch.tensor([True] * 7 + [False])
+    grid.reset(mask)
+    levels = grid.levels.tolist()
+    assert levels[:3] == [1, 0, 1]  # up; down; stays (1.9 m > 1 m asked)
+    assert levels[3] in (0, 1, 2)  # past the top: a random level
+    assert levels[4:7] == [0, 1, 1]  # asked nothing (stays); stays; down
+    assert levels[7] == 2  # not reset: unchanged
+
+
+def test_the_terrain_state_travels_with_the_task_state_and_its_levels_are_logged():
+    env = _go1_on_terrain()
+    state = env.task.state()
+    for name in ("levels", "types", "start", "walked", "started"):
+        assert f"terrain/{name}" in state
+    figures = env.task.episode_metrics()
+    grid = env.task.terrain
+    level = grid.levels.double() / 2
+    assert torch.equal(figures["terrain/level"], level)
+    # Per type, scaled by its share of the envs: its mean over all envs is the type's mean.
+    assert figures["terrain/level/stairs"].mean() == pytest.approx(float(level[4:].mean()))
+
+
+def test_a_height_scan_without_terrain_is_one_line():
+    from labcli.envs.mdp import config as c
+    from labcli.envs.mdp import observations as o
+    from labcli.errors import LabError
+    from labcli.gym import make_env
+
+    env = make_env("go1-flat", num_envs=2, seed=0)
+    with pytest.raises(LabError, match="the task has none"):
+        o.height_scan(env.task, c.HeightScan())
+
+
+@pytest.mark.gpu
+@pytest.mark.skipif(not (all(importlib.util.find_spec(m) for m in ("warp", "mujoco_warp"))
+                         and torch.cuda.is_available()),
+                    reason='needs a CUDA GPU and MuJoCo Warp (pip install -e ".[warp]")')
+def test_both_backends_stand_go1s_on_the_terrain_and_scan_it_alike():
+    """MuJoCo Warp collides with the height fields and boxes as MuJoCo does: from the same
+    state, robots holding their pose stay on their patches on both backends, and the height
+    scans of the same states agree."""
+    import json
+
+    from backends import lift_and_copy
+
+    from labcli.gym import make_env
+
+    sets = ["env.observation_noise=false", "env.events.push_robot=null",
+            "env.terrain=" + json.dumps(TERRAIN)]
+    cpu = make_env("go1-flat", num_envs=8, backend="cpu", device="cpu", seed=0, overrides=sets)
+    gpu = make_env("go1-flat", num_envs=8, backend="warp", device="cuda", seed=0, overrides=sets)
+    cpu.reset(), gpu.reset()
+    lift_and_copy(cpu, gpu, height=0.0)
+    for _ in range(50):
+        cpu.step(torch.zeros(8, 12))
+        gpu.step(torch.zeros(8, 12, device="cuda"))
+    grid = cpu.task.terrain
+    home = cpu.task.model.key("home").qpos[2]
+    origin = grid.origins[grid.levels, grid.types]
+    for env in (cpu, gpu):
+        height = env.task.robot.root_pos[:, 2].cpu().double()
+        assert torch.allclose(height, origin[:, 2] + home, atol=0.05), env.backend
+    assert torch.allclose(gpu.task.robot.root_pos.cpu().double(), cpu.task.robot.root_pos,
+                          atol=1e-2)
+    from labcli.envs.mdp import config as c
+    from labcli.envs.mdp import observations as o
+
+    lift_and_copy(cpu, gpu, height=0.0)
+    cpu.task.update(), gpu.task.update()
+    scans = [o.height_scan(env.task, c.HeightScan())() for env in (cpu, gpu)]
+    assert torch.allclose(scans[1].cpu().double(), scans[0], atol=1e-4)

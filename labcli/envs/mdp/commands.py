@@ -33,6 +33,8 @@ class UniformVelocityCommand:
         self.task, self.cfg, self.robot = task, cfg, task.robot
         n, like = task.num_envs, task.ones
         self.command = like.new_zeros(n, 3)
+        if task.terrain is not None:  # its curriculum asks for the distance commanded
+            task.terrain.follow_command(self.command)
         self.heading = like.new_zeros(n)
         self.time_left = like.new_zeros(n)
         self.heading_env = torch.zeros(n, dtype=torch.bool, device=like.device)

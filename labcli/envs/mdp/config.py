@@ -17,6 +17,7 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from labcli.envs.config import TaskConfig
 from labcli.envs.mdp.description import RobotDescription
+from labcli.envs.mdp.terrain import TerrainConfig
 
 Range = tuple[float, float]
 # Body names or patterns (regular expressions matched whole): at least one.
@@ -142,6 +143,21 @@ class UpProj(ObsTerm):
 
 class HeadingProj(TargetObs):
     impl: ClassVar[str] = "labcli.envs.mdp.observations:base_heading_proj"
+
+
+class HeightScan(ObsTerm):
+    """The terrain around the base, as Isaac Lab's height scanner sees it: the base's height
+    above the terrain at a yaw-aligned grid of points (`length` metres along the base's x by
+    `width` along its y, every `resolution`; by default 17 × 11 = 187), minus `offset`. Point
+    order: x (back to front) fastest, then y (right to left). Needs env.terrain."""
+
+    impl: ClassVar[str] = "labcli.envs.mdp.observations:height_scan"
+    length: float = Field(1.6, ge=0, description="m along the base's x")
+    width: float = Field(1.0, ge=0, description="m along the base's y")
+    resolution: float = Field(0.1, gt=0, description="m between points")
+    offset: float = Field(0.5, description="m subtracted from every height")
+    noise: float = Field(0.1, ge=0.0)
+    clip: Range | None = (-1.0, 1.0)
 
 
 class JointPos(ObsTerm):
@@ -639,6 +655,9 @@ class RobotTaskConfig(TaskConfig):
                                   "base has none)")
     default_pose: str | None = Field("home", description="the model's keyframe that resets "
                                      "start from (Isaac Lab's init_state); None: qpos0")
+    terrain: TerrainConfig | None = Field(None, description="a grid of terrain patches in "
+                                          "place of the model's ground plane, robots starting "
+                                          "on them; None: the model's own ground")
     # Concrete types: a run's params/env.yaml is read back into them. A subclass declares its own
     # (e.g. `actions: JointPosition = JointPosition(scale=0.25)`).
     actions: JointEffort = JointEffort()

@@ -10,6 +10,7 @@ import torch
 
 from labcli.envs.mdp import config as c
 from labcli.envs.mdp import math, sensors
+from labcli.errors import LabError
 
 if TYPE_CHECKING:
     from labcli.envs.mdp.task import RobotTask
@@ -96,6 +97,36 @@ class generated_commands:  # noqa: N801 - a term, named as Isaac Lab's
 
 def last_action(task: RobotTask, cfg: c.LastAction) -> torch.Tensor:
     return task.action
+
+
+class height_scan:  # noqa: N801 - a term, named as Isaac Lab's
+    """The base's height above the terrain (`task.terrain`) under each point of the grid, turned
+    with the base's yaw, minus the offset."""
+
+    def __init__(self, task: RobotTask, cfg: c.HeightScan):
+        if task.terrain is None:
+            raise LabError("observation height_scan reads the terrain, and the task has none",
+                           "give env.terrain, or leave height_scan out (null)")
+        self.robot, self.terrain, self.offset = task.robot, task.terrain, cfg.offset
+        xs = _ticks(cfg.length, cfg.resolution)
+        ys = _ticks(cfg.width, cfg.resolution)
+        self.names = [f"{x:+.2f},{y:+.2f}" for y in ys for x in xs]
+        grid = [(x, y) for y in ys for x in xs]
+        self.px, self.py = task.constant([p[0] for p in grid]), task.constant([p[1] for p in grid])
+
+    def __call__(self) -> torch.Tensor:
+        r = self.robot
+        cos, sin = torch.cos(r.yaw)[:, None], torch.sin(r.yaw)[:, None]
+        x = r.root_xy[:, :1] + cos * self.px - sin * self.py
+        y = r.root_xy[:, 1:] + sin * self.px + cos * self.py
+        below = self.terrain.heights(torch.stack((x, y), dim=-1))
+        return r.root_height[:, None] - below - self.offset
+
+
+def _ticks(length: float, step: float) -> list[float]:
+    """Points every `step` across `length`, centred on 0 (Isaac Lab's grid pattern)."""
+    count = int(round(length / step, 9)) + 1
+    return [-length / 2 + i * step for i in range(count)]
 
 
 class body_incoming_wrench:  # noqa: N801 - a term, named as Isaac Lab's

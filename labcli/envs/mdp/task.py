@@ -30,9 +30,10 @@ import torch
 
 from labcli import refs
 from labcli.envs import models
-from labcli.envs.mdp import robot_model, sensors
+from labcli.envs.mdp import robot_model, sensors, terrain_model
 from labcli.envs.mdp.config import Group, RobotTaskConfig, Term
 from labcli.envs.mdp.robot import Robot
+from labcli.envs.mdp.terrain_grid import TerrainGrid
 from labcli.envs.models import ModelSource
 from labcli.envs.random import EnvRandom
 from labcli.envs.sim import Sim
@@ -89,6 +90,8 @@ class RobotTask(Task):
             models.drop_visual_meshes(spec)
         if cfg.robot is not None:
             robot_model.apply(spec, cfg.robot)
+        if cfg.terrain is not None:
+            terrain_model.apply(spec, cfg.terrain)
         model = spec.compile()
         needed = [s for term in _all_terms(cfg)
                   for s in getattr(impl_of(term), "sensors", lambda m, t: [])(model, term)]
@@ -120,6 +123,9 @@ class RobotTask(Task):
         # Terms draw from the env's rng; the env sets its own before the first reset.
         self.rng = EnvRandom(n, dev)
 
+        # Before the terms: a velocity command tells it the distance its curriculum asks for.
+        self.terrain = (TerrainGrid(self, cfg.terrain, cfg.episode_length_s)
+                        if cfg.terrain is not None else None)
         self.actuation = impl_of(cfg.actions)(self, cfg.actions)
         self.action_names = [self.robot.joint_names[i] for i in range(sim.model.nu)]
         # Commands first: the terms made after them find theirs (`command(name)`).
@@ -139,6 +145,9 @@ class RobotTask(Task):
         # What terms share advances after the terms' own hooks: they read this step's state.
         self._after_step += [s.after_step for s in shared if hasattr(s, "after_step")]
         self._metrics = [(b.name, b.metrics) for b in every if b.metrics is not None]
+        if self.terrain is not None:
+            self._after_step.append(self.terrain.after_step)
+            self._metrics.append(("terrain", self.terrain.metrics))
         # Start-up events (per-env physics) run once, at the env's first reset.
         self._startups = [b.compute.startup for b in self._events
                           if hasattr(b.compute, "startup")]
@@ -150,6 +159,8 @@ class RobotTask(Task):
         self._carriers = [(b.name, b.made) for b in every if getattr(b.made, "carried", ())]
         self._carriers += [(f"shared{i}", s) for i, s in enumerate(shared)
                            if getattr(s, "carried", ())]
+        if self.terrain is not None:
+            self._carriers.append(("terrain", self.terrain))
         if not self._obs:
             raise LabError("the task's config lists no observation terms",
                            "give env.observations at least one term")
@@ -198,6 +209,8 @@ class RobotTask(Task):
             self._startups.pop(0)()
         for hook in self._event_resets:
             hook(mask)
+        if self.terrain is not None:  # onto the patches, before the terms note where they start
+            self.terrain.reset(mask)
         # Terms' resets read the state's own views (root_pos...): the derived values are
         # recomputed once, by the env's update() that follows every reset.
         for hook in self._term_resets:

@@ -104,6 +104,8 @@ class TerrainConfig(BaseModel):
     horizontal_scale: float = Field(0.1, gt=0, description="m between height-field points")
     vertical_scale: float = Field(0.005, gt=0, description="m, height fields' resolution")
     curriculum: bool = True
+    max_start_level: int = Field(5, ge=0, description="with the curriculum, new envs start on "
+                                 "a random level up to this")
     difficulty: Range = Field((0.0, 1.0), description="of the first row and the last")
     types: dict[str, SubTerrain] = Field(min_length=1)
 
