@@ -341,3 +341,40 @@ def test_both_backends_stand_go1s_on_the_terrain_and_scan_it_alike():
     cpu.task.update(), gpu.task.update()
     scans = [o.height_scan(env.task, c.HeightScan())() for env in (cpu, gpu)]
     assert torch.allclose(scans[1].cpu().double(), scans[0], atol=1e-4)
+
+
+def test_heights_the_terms_read_are_above_the_terrain_under_them():
+    """On stairs down (every platform sunk 0.4 m or more) the G1's pelvis and soles stand as
+    high above the ground as on flat ground: the base-height terms and the feet's heights read
+    the terrain under them. Its feet, which meet Menagerie's floor through explicit pairs, stand
+    on the terrain: half a second holding the pose ends as on flat ground."""
+    import json
+
+    from labcli.envs.mdp import config as c
+    from labcli.envs.mdp import feet, terminations
+    from labcli.gym import make_env
+
+    down = {**TERRAIN, "types": {"down": {"type": "pyramid_stairs", "platform": 1.0,
+                                          "inverted": True, "step_height": [0.1, 0.2]}}}
+    heights = {}
+    for name, terrain in (("flat", None), ("down", down)):
+        sets = ["env.observation_noise=false"]
+        sets += [] if terrain is None else ["env.terrain=" + json.dumps(terrain)]
+        env = make_env("g1-flat", num_envs=4, seed=0, overrides=sets)
+        env.reset()
+        task = env.task
+        (soles,) = [s for s in task._shared.values() if isinstance(s, feet.FootSites)]
+        heights[name] = (task.base_height().clone(), soles.heights().clone())
+        if terrain is not None:
+            # Every platform is 0.4 m or more below z = 0: so is the pelvis below its height
+            # on flat ground.
+            assert (task.robot.root_height < heights["flat"][0] - 0.3).all()
+            fell = terminations.root_height_below_minimum(task, c.BaseHeightBelow(
+                minimum_height=0.2))
+            assert not fell.any()
+        for _ in range(25):
+            env.step(torch.zeros(4, len(task.action_names)))
+        heights[name] += (task.base_height().clone(),)
+    for flat, on_stairs in zip(heights["flat"][:2], heights["down"][:2], strict=True):
+        assert torch.allclose(on_stairs, flat, atol=1e-3)
+    assert torch.allclose(heights["down"][2], heights["flat"][2], atol=0.02)

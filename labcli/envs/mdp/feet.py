@@ -125,7 +125,7 @@ class FootContacts:
 
 
 class FootSites:
-    """Per named site (`[n, sites]`, in the order given): `heights()` above the terrain (m) and
+    """Per named site (`[n, sites]`, in the order given): `heights()` above the ground (m) and
     `speed_xy()`, the norm of its horizontal velocity (m/s, world frame), from framepos and
     framelinvel sensors."""
 
@@ -136,9 +136,7 @@ class FootSites:
         self._vel = sensors.columns(task, [[_site_sensors(s)[1].name] for s in sites])
         self._shape = (n, k, 3)
         self._key = ("foot_sites", tuple(sites))
-        # The terrain's height under each site: 0 on flat ground; a height field or terrain
-        # sensor would write it here, once per state, before `heights` reads it.
-        self.ground = task.ones.new_zeros(n, k)
+        self.terrain = task.terrain
 
     @staticmethod
     def sensors(model: mujoco.MjModel, sites: Sequence[str]) -> list[sensors.Sensor]:
@@ -150,8 +148,14 @@ class FootSites:
         return task.shared(("foot_sites", tuple(sites)), lambda: cls(task, list(sites)))
 
     def heights(self) -> torch.Tensor:
-        return self.robot.per_state((*self._key, "heights"), lambda: (
-            torch.sub(self._pos().view(self._shape)[..., 2], self.ground)))
+        """Above the terrain under each site where the task has terrain, else above z = 0."""
+        def above() -> torch.Tensor:
+            pos = self._pos().view(self._shape)
+            if self.terrain is None:
+                return pos[..., 2]
+            return pos[..., 2] - self.terrain.heights(pos[..., :2])
+
+        return self.robot.per_state((*self._key, "heights"), above)
 
     def speed_xy(self) -> torch.Tensor:
         return self.robot.per_state((*self._key, "speed_xy"), lambda: (

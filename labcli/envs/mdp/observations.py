@@ -17,7 +17,7 @@ if TYPE_CHECKING:
 
 
 def base_height(task: RobotTask, cfg: c.BaseHeight) -> torch.Tensor:
-    return task.robot.root_height[:, None]
+    return task.base_height()[:, None]
 
 
 def base_lin_vel(task: RobotTask, cfg: c.BaseLinVel) -> torch.Tensor:

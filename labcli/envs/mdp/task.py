@@ -250,6 +250,14 @@ class RobotTask(Task):
                            f"name one of {sorted(self._commands) or 'no commands: add one'}")
         return built.made
 
+    def base_height(self) -> torch.Tensor:
+        """The root's height above the ground under it `[n]`: above the terrain's surface
+        where the task has terrain, else above z = 0 (once per state)."""
+        if self.terrain is None:
+            return self.robot.root_height
+        return self.robot.per_state("base_height", lambda: (
+            self.robot.root_height - self.terrain.heights(self.robot.root_xy)))
+
     def shared(self, key: object, make: Callable[[], Any]) -> Any:
         """The object terms share under `key` (labcli/envs/mdp/feet.py), made by the first
         term that asks, in its `__init__`; its optional `after_step()` and `reset(mask)` run

@@ -16,7 +16,7 @@ if TYPE_CHECKING:
 
 
 def root_height_below_minimum(task: RobotTask, cfg: c.BaseHeightBelow) -> torch.Tensor:
-    return task.robot.root_height < cfg.minimum_height
+    return task.base_height() < cfg.minimum_height
 
 
 def bad_orientation(task: RobotTask, cfg: c.BadOrientation) -> torch.Tensor:

@@ -23,6 +23,8 @@ COLORS = {"flat": (0.45, 0.47, 0.50, 1), "random_rough": (0.42, 0.50, 0.38, 1),
           "pyramid_stairs": (0.60, 0.56, 0.50, 1), "discrete_obstacles": (0.50, 0.42, 0.48, 1),
           "stepping_stones": (0.48, 0.52, 0.45, 1)}
 BORDER_RGBA = (0.3, 0.3, 0.3, 1)
+# The contact bit by which geoms that met the ground through explicit pairs meet the terrain.
+TERRAIN_BIT = 1 << 3
 CONTACT = ("contype", "conaffinity", "condim", "priority", "friction", "solmix", "solref",
            "solimp", "margin", "gap")
 
@@ -71,12 +73,39 @@ def apply(spec: mujoco.MjSpec, cfg: t.TerrainConfig) -> Terrain:
 
 
 def _take_ground(spec: mujoco.MjSpec) -> dict:
-    """Delete the world's ground planes; returns the first one's contact settings."""
+    """Delete the world's ground planes; returns the first one's contact settings, with which
+    the terrain's geoms collide. A model that collides through explicit pairs with its plane
+    (MuJoCo Menagerie's MJX scenes: feet and hands against the floor, every geom's contype 0)
+    collides its geoms of those pairs with the terrain instead (`_pairs_to_terrain`)."""
     planes = [g for g in spec.worldbody.geoms if g.type == mujoco.mjtGeom.mjGEOM_PLANE]
     contact = {attr: _copy(getattr(planes[0], attr)) for attr in CONTACT} if planes else {}
+    names = {plane.name for plane in planes if plane.name}
+    if names:
+        contact.update(_pairs_to_terrain(spec, names, contact.get("priority", 0)))
     for plane in planes:
         spec.delete(plane)
     return contact
+
+
+def _pairs_to_terrain(spec: mujoco.MjSpec, planes: set[str], priority: int) -> dict:
+    """Each geom paired with a deleted plane collides with the terrain by its own bit (the
+    terrain's conaffinity, no other geom's), taking the pair's contact settings as its own at
+    a priority above the terrain's, so that MuJoCo uses them for those contacts. The pairs go.
+    Returns the terrain's conaffinity, with that bit."""
+    pairs = [p for p in spec.pairs if p.geomname1 in planes or p.geomname2 in planes]
+    if not pairs:
+        return {}
+    for pair in pairs:
+        name = pair.geomname2 if pair.geomname1 in planes else pair.geomname1
+        geom = spec.geom(name)
+        geom.contype |= TERRAIN_BIT
+        geom.priority = priority + 1
+        geom.condim, geom.margin, geom.gap = pair.condim, pair.margin, pair.gap
+        geom.solref, geom.solimp = pair.solref.copy(), pair.solimp.copy()
+        # A pair's five frictions (two sliding, torsional, two rolling); a geom's three.
+        geom.friction = [pair.friction[0], pair.friction[2], pair.friction[3]]
+        spec.delete(pair)
+    return {"conaffinity": TERRAIN_BIT}
 
 
 def _copy(value):
