@@ -187,7 +187,7 @@ def test_a_preview_is_written(tmp_path):
     cfg = _small()
     model, terrain = _build(cfg)
     out = tmp_path / "terrain.png"
-    tm.save_preview(model, terrain, cfg, out)
+    tm.save_preview(model, cfg, out)
     assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and out.stat().st_size > 10_000
 
 
@@ -378,3 +378,22 @@ def test_heights_the_terms_read_are_above_the_terrain_under_them():
     for flat, on_stairs in zip(heights["flat"][:2], heights["down"][:2], strict=True):
         assert torch.allclose(on_stairs, flat, atol=1e-3)
     assert torch.allclose(heights["down"][2], heights["flat"][2], atol=0.02)
+
+
+def test_config_show_draws_a_tasks_terrain_with_its_settings(tmp_path):
+    from typer.testing import CliRunner
+
+    from labcli.commands.app import app
+
+    out = tmp_path / "terrain.png"
+    result = CliRunner().invoke(app, [
+        "config", "show", "--task", "go1-rough", "--framework", "rsl_rl", "--terrain", str(out),
+        "--set", "env.terrain.rows=2", "--set", "env.terrain.cols=6"])
+    assert result.exit_code == 0, result.output
+    assert "rows: 2" in result.output
+    assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    flat = CliRunner().invoke(app, ["config", "show", "--task", "go1-flat", "--framework",
+                                    "rsl_rl", "--terrain", str(tmp_path / "flat.png")])
+    assert flat.exit_code == 2
+    assert "error: task 'go1-flat' has no terrain (env.terrain)" in flat.output
+    assert not (tmp_path / "flat.png").exists()

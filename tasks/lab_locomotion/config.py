@@ -13,7 +13,9 @@ from pydantic import Field
 
 from lab_locomotion.g1 import ROBOT as G1
 from labcli.envs.mdp import config as c
+from labcli.envs.mdp import terrain as t
 from labcli.envs.mdp.description import RobotDescription
+from labcli.envs.mdp.terrain import TerrainConfig
 
 # Isaac Lab: 120 Hz physics, decimation 2, 16 s episodes.
 PHYSICS_DT = 1 / 120
@@ -276,3 +278,53 @@ class G1FlatConfig(Go1FlatConfig):
     # Its yaw-rate commands ask 0.25 rad/s on average (±0.5): a G1 that never turned would pass
     # go1-flat's 0.3 rad/s bound. Half of it instead.
     success: c.TrackedCommand | None = c.TrackedCommand(lin_vel_error=0.25, ang_vel_error=0.15)
+
+
+# Rough terrain: Isaac Lab's Isaac-Velocity-Rough-Unitree-Go1-v0 (locomotion/velocity/
+# velocity_env_cfg.py, config/go1/rough_env_cfg.py; go1-flat is its flat variant). Isaac Lab's
+# ROUGH_TERRAINS_CFG with the Go1's smaller boxes and roughness, its height scan, the terrain
+# curriculum; its flat-orientation penalty off and a small feet-air-time reward.
+def go1_terrain() -> TerrainConfig:
+    stairs = {"step_height": (0.05, 0.23), "step_width": 0.3, "platform": 3.0}
+    return TerrainConfig(types={
+        "stairs": t.PyramidStairs(proportion=0.2, **stairs),
+        "stairs_down": t.PyramidStairs(proportion=0.2, inverted=True, **stairs),
+        # Isaac Lab's grid of 0.45 m boxes of random height, raised and sunk.
+        "boxes": t.DiscreteObstacles(proportion=0.2, height=(0.025, 0.1), width=(0.45, 0.45),
+                                     count=150),
+        "rough": t.RandomRough(proportion=0.2, noise=(0.01, 0.06), step=0.01),
+        "slope": t.PyramidSlope(proportion=0.1, slope=(0.0, 0.4)),
+        "slope_down": t.PyramidSlope(proportion=0.1, slope=(0.0, 0.4), inverted=True),
+    })
+
+
+class Go1RoughObservations(VelocityObservations):
+    height_scan: c.HeightScan | None = c.HeightScan()
+
+
+class Go1RoughRewards(Go1FlatRewards):
+    feet_air_time: c.FeetAirTime | None = c.FeetAirTime(weight=0.01, bodies=[".*_foot"],
+                                                          threshold_s=0.5)
+    flat_orientation_l2: c.FlatOrientationL2 | None = None
+
+
+class Go1RoughConfig(Go1FlatConfig):
+    terrain: TerrainConfig | None = Field(default_factory=go1_terrain)
+    # Height fields and stair edges touch a foot at more points than a plane.
+    nconmax: int | None = 40
+    njmax: int | None = 160
+    observations: Go1RoughObservations = Go1RoughObservations()
+    rewards: Go1RoughRewards = Go1RoughRewards()
+
+
+# mjlab's Mjlab-Velocity-Rough-Unitree-G1 (g1-flat is its flat variant): its ROUGH_TERRAINS_CFG
+# (t.rough()) with the curriculum, and the pelvis's height scan in the observations, as
+# mjlab's: heights above the terrain scaled by 1 / 5 m, no offset, no clip.
+class G1RoughObservations(G1Observations):
+    height_scan: c.HeightScan | None = c.HeightScan(offset=0.0, scale=0.2, clip=None)
+
+
+class G1RoughConfig(G1FlatConfig):
+    terrain: TerrainConfig | None = Field(default_factory=t.rough)
+    nconmax: int | None = 70
+    observations: G1RoughObservations = G1RoughObservations()

@@ -123,6 +123,27 @@ def _g1_defaults() -> dict:
     return defaults
 
 
+# Isaac Lab's Go1 rough agents: go1-flat's with [512, 256, 128] networks, 1,500 iterations.
+ROUGH_NETWORK = [512, 256, 128]
+GO1_ROUGH_ITERATIONS = 1500
+# Not yet measured: 3× g1-flat's, for the terrain curriculum's levels (mjlab runs 30,000).
+G1_ROUGH_ITERATIONS = 6000
+
+
+def _with_iterations(defaults: dict, iterations: int, network: list[int] | None = None) -> dict:
+    """`defaults` with every framework's `max_iterations` (CPU and GPU) set to `iterations`
+    and, given `network`, their networks' layers."""
+    keys = {"rsl_rl": ("actor_hidden_dims", "critic_hidden_dims"), "skrl": ("hidden_sizes",),
+            "sb3": ("net_arch",), "rl_games": ("units",)}
+    for name, settings in defaults.items():
+        for agent in (settings["agent"], settings["warp"]["agent"]):
+            agent["max_iterations"] = iterations
+            for key in keys.get(name, ()) if network is not None else ():
+                if key in settings["agent"]:
+                    settings["agent"][key] = network
+    return defaults
+
+
 @hookimpl
 def register_tasks(register):
     register(_spec("ant", "AntConfig", "Isaac Lab's Ant: a four-legged ant runs toward a "
@@ -144,3 +165,19 @@ def register_tasks(register):
         success="at the 20 s time-out, not fallen, mean tracking errors of the velocity kept "
                 "over 1 s under 0.25 m/s (xy) and 0.15 rad/s (yaw rate)",
         framework_defaults=_g1_defaults()))
+    register(TaskSpec(
+        name="go1-rough", task=TASK, config="lab_locomotion.config:Go1RoughConfig",
+        model=HERE / "go1.xml",
+        description="Isaac Lab's Velocity-Rough-Unitree-Go1: go1-flat on stairs, boxes, "
+                    "slopes and rough ground, with a height scan and a terrain curriculum",
+        success="at the 20 s time-out, mean tracking errors under 0.25 m/s (xy) and 0.3 rad/s "
+                "(yaw rate)",
+        framework_defaults=_with_iterations(_velocity_defaults(num_envs=256, max_iterations=1),
+                                            GO1_ROUGH_ITERATIONS, ROUGH_NETWORK)))
+    register(TaskSpec(
+        name="g1-rough", task=TASK, config="lab_locomotion.config:G1RoughConfig", model=g1.MODEL,
+        description="mjlab's Velocity-Rough-Unitree-G1: g1-flat on stairs, slopes, rough "
+                    "ground and waves, with a height scan and a terrain curriculum",
+        success="at the 20 s time-out, not fallen, mean tracking errors of the velocity kept "
+                "over 1 s under 0.25 m/s (xy) and 0.15 rad/s (yaw rate)",
+        framework_defaults=_with_iterations(_g1_defaults(), G1_ROUGH_ITERATIONS)))

@@ -140,15 +140,16 @@ class TerrainConfig(BaseModel):
 
 
 def rough() -> TerrainConfig:
-    """The rough terrain of Isaac Lab's and mjlab's rough velocity tasks: a fifth flat, two
-    fifths stairs up and down, and slopes, random roughness and waves, 10 rows of 20 columns of
-    8 m patches."""
+    """mjlab 1.6.0's ROUGH_TERRAINS_CFG (its rough velocity tasks): a fifth flat, two fifths
+    stairs up and down, slopes up to 45°, random roughness and waves, 10 rows of 20 columns of
+    8 m patches in a 20 m border. Its roughness is fixed, here it grows with the level."""
+    stairs = {"step_height": (0.0, 0.1), "step_width": 0.3, "platform": 3.0}
     return TerrainConfig(types={
         "flat": Flat(proportion=0.2),
-        "stairs": PyramidStairs(proportion=0.2, step_height=(0.0, 0.1)),
-        "stairs_down": PyramidStairs(proportion=0.2, step_height=(0.0, 0.1), inverted=True),
-        "slope": PyramidSlope(proportion=0.1),
-        "slope_down": PyramidSlope(proportion=0.1, inverted=True),
+        "stairs": PyramidStairs(proportion=0.2, **stairs),
+        "stairs_down": PyramidStairs(proportion=0.2, inverted=True, **stairs),
+        "slope": PyramidSlope(proportion=0.1, slope=(0.0, 1.0)),
+        "slope_down": PyramidSlope(proportion=0.1, slope=(0.0, 1.0), inverted=True),
         "rough": RandomRough(proportion=0.1),
         "waves": Wave(proportion=0.1),
     })

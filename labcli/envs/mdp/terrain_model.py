@@ -296,28 +296,36 @@ def _cells(model: mujoco.MjModel, g: int, xs: np.ndarray, ys: np.ndarray):
             (int(np.searchsorted(ys, lo[1])), int(np.searchsorted(ys, hi[1]))))
 
 
-def save_preview(model: mujoco.MjModel, terrain: Terrain, cfg: t.TerrainConfig,
-                 output: Path, resolution: float = 0.05) -> None:
-    """A top view of the terrain's grid as a PNG, coloured by height (`height_map`): rows
-    (difficulty) up the image, each column labelled with its type. Written atomically."""
+def save_preview(model: mujoco.MjModel, cfg: t.TerrainConfig, output: Path,
+                 resolution: float = 0.05) -> None:
+    """A top view of the model's terrain (built from `cfg`) as a PNG, coloured by height
+    (`height_map`): rows (difficulty) up the image, each column labelled with its type.
+    Written atomically."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
     from labcli import files
 
     heights, (x0, x1, y0, y1) = height_map(model, resolution)
-    rows, cols = terrain.origins.shape[:2]
+    columns = cfg.columns()
+    rows, cols = cfg.rows, len(columns)
     fig = Figure(figsize=(max(6.0, cols * 0.6), max(4.0, rows * 0.45)), dpi=120)
     FigureCanvasAgg(fig)
     ax = fig.add_subplot()
     # Columns across, rows up: the grid is wider than deep.
     image = ax.imshow(heights.T, origin="lower", extent=(y0, y1, x0, x1), cmap="terrain",
                       interpolation="nearest")
-    ax.set_xticks(terrain.origins[0, :, 1], terrain.columns, rotation=60, fontsize="small")
-    ax.set_yticks(terrain.origins[:, 0, 0],
-                  [f"{d:.2f}" for d in terrain.difficulty[:, 0]], fontsize="small")
+    ax.set_xticks([(c + 0.5 - cols / 2) * cfg.size for c in range(cols)], columns,
+                  rotation=60, fontsize="small")
+    lo, hi = cfg.difficulty
+    ax.set_yticks([(r + 0.5 - rows / 2) * cfg.size for r in range(rows)],
+                  [f"{lo + (hi - lo) * r / max(rows - 1, 1):.2f}" if cfg.curriculum else str(r)
+                   for r in range(rows)], fontsize="small")
+    margin = min(cfg.border, 1.0)  # the grid, not the whole border
+    ax.set_xlim(-cols * cfg.size / 2 - margin, cols * cfg.size / 2 + margin)
+    ax.set_ylim(-rows * cfg.size / 2 - margin, rows * cfg.size / 2 + margin)
     ax.set_xlabel("terrain type (y)")
-    ax.set_ylabel("difficulty (x)" if cfg.curriculum else "row (x)")
+    ax.set_ylabel("difficulty (x)" if cfg.curriculum else "row, of random difficulty (x)")
     ax.set_title(f"terrain, seed {cfg.seed}: {rows} × {cols} patches of {cfg.size:g} m")
     fig.colorbar(image, ax=ax, label="height (m)", shrink=0.8)
     fig.tight_layout()
