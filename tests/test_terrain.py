@@ -397,3 +397,26 @@ def test_config_show_draws_a_tasks_terrain_with_its_settings(tmp_path):
     assert flat.exit_code == 2
     assert "error: task 'go1-flat' has no terrain (env.terrain)" in flat.output
     assert not (tmp_path / "flat.png").exists()
+
+
+def test_a_robot_at_the_terrains_edge_ends_its_episode_as_a_time_out():
+    import json
+
+    from labcli.gym import make_env
+
+    # go1-rough's own types left out (null), TERRAIN's two in their place.
+    types = {**dict.fromkeys(["stairs", "stairs_down", "boxes", "rough", "slope",
+                              "slope_down"]), **TERRAIN["types"]}
+    env = make_env("go1-rough", num_envs=4, seed=0, overrides=[
+        "env.observation_noise=false", "env.terrain=" + json.dumps({**TERRAIN, "types": types})])
+    assert sorted(env.task.terrain.columns) == ["flat", "stairs"]
+    env.reset()
+    assert list(env.task.terminations()) == ["base_contact"]  # the time-out is not a failure
+    state = env.get_state()
+    # Grid 3 × 4 m by 2 × 4 m in a 1 m border: |x| up to 7 m, |y| up to 5 m; 0.3 m margin.
+    state["qpos"][:, :2] = torch.tensor([[6.8, 0.0], [6.6, 0.0], [0.0, -4.8], [0.0, 4.6]],
+                                        dtype=state["qpos"].dtype)
+    env.set_state(state)
+    _, _, terminated, truncated, _ = env.step(torch.zeros(4, 12))
+    assert truncated.tolist() == [True, False, True, False]
+    assert not terminated.any()

@@ -300,6 +300,9 @@ class LabVecEnv(gym.vector.VectorEnv):
         terminated_any = torch.any(terminated, dim=0, out=o.terminated)
         done = torch.logical_or(terminated_any, self.episode_length >= self.max_episode_length,
                                 out=o.done)
+        time_outs = self.task.time_outs()
+        if time_outs is not None:
+            done.logical_or_(time_outs)
         if next_step:
             done.logical_and_(live)
         # Timed out and not terminated.

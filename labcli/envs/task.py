@@ -95,6 +95,13 @@ class Task:
         """Boolean `[num_envs]` per termination cause (time-outs are the env's business)."""
         return {}
 
+    def time_outs(self) -> torch.Tensor | None:
+        """Boolean `[num_envs]`: envs whose episode ends now as a time-out, besides the
+        episode's length (Isaac Lab's terminations with `time_out=True`, such as a robot at the
+        terrain's edge): truncated, not terminated, so learners bootstrap from their value.
+        The default: None, no such cause."""
+        return None
+
     def state(self) -> dict[str, torch.Tensor]:
         """The task's own per-env tensors (`[num_envs, ...]`) that carry from one step to the
         next beyond the sim's state (a command, its timer, per-env masses), by name: the env

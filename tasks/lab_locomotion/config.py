@@ -308,6 +308,10 @@ class Go1RoughRewards(Go1FlatRewards):
     flat_orientation_l2: c.FlatOrientationL2 | None = None
 
 
+class Go1RoughTerminations(Go1Terminations):
+    out_of_terrain_bounds: c.TerrainOutOfBounds | None = c.TerrainOutOfBounds()
+
+
 class Go1RoughConfig(Go1FlatConfig):
     terrain: TerrainConfig | None = Field(default_factory=go1_terrain)
     # Height fields and stair edges touch a foot at more points than a plane.
@@ -315,6 +319,7 @@ class Go1RoughConfig(Go1FlatConfig):
     njmax: int | None = 160
     observations: Go1RoughObservations = Go1RoughObservations()
     rewards: Go1RoughRewards = Go1RoughRewards()
+    terminations: Go1RoughTerminations = Go1RoughTerminations()
 
 
 # mjlab's Mjlab-Velocity-Rough-Unitree-G1 (g1-flat is its flat variant): its ROUGH_TERRAINS_CFG
@@ -324,7 +329,12 @@ class G1RoughObservations(G1Observations):
     height_scan: c.HeightScan | None = c.HeightScan(offset=0.0, scale=0.2, clip=None)
 
 
+class G1RoughTerminations(G1Terminations):
+    out_of_terrain_bounds: c.TerrainOutOfBounds | None = c.TerrainOutOfBounds()
+
+
 class G1RoughConfig(G1FlatConfig):
     terrain: TerrainConfig | None = Field(default_factory=t.rough)
     nconmax: int | None = 70
     observations: G1RoughObservations = G1RoughObservations()
+    terminations: G1RoughTerminations = G1RoughTerminations()

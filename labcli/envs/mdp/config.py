@@ -473,7 +473,17 @@ class SelfCollisions(RewardTerm):
 
 # terminations ----------------------------------------------------------------------------------
 class TerminationTerm(Term):
-    pass
+    time_out: bool = Field(False, description="end the episode as a time-out (truncated, "
+                           "bootstrapped), not as a failure")
+
+
+class TerrainOutOfBounds(TerminationTerm):
+    """The base within `margin` of the terrain's outer edge (its grid and border): as mjlab's,
+    a time-out. Needs env.terrain."""
+
+    impl: ClassVar[str] = "labcli.envs.mdp.terminations:terrain_out_of_bounds"
+    time_out: bool = True
+    margin: float = Field(0.3, ge=0, description="m inside the edge")
 
 
 class BaseHeightBelow(TerminationTerm):

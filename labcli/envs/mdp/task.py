@@ -132,12 +132,14 @@ class RobotTask(Task):
         self._commands = {name: Built(self, name, t) for name, t in cfg.commands.terms()}
         self._obs = [Built(self, name, t) for name, t in cfg.observations.terms()]
         self._rewards = [Built(self, name, t) for name, t in cfg.rewards.terms()]
-        self._terminations = [Built(self, name, t) for name, t in cfg.terminations.terms()]
+        terminations = [Built(self, name, t) for name, t in cfg.terminations.terms()]
+        self._terminations = [b for b in terminations if not b.cfg.time_out]
+        self._time_outs = [b for b in terminations if b.cfg.time_out]
         self._events = [Built(self, name, t) for name, t in cfg.events.terms()]
         self._success = (Built(self, "success", cfg.success) if cfg.success is not None
                          else None)
         every = [*self._commands.values(), *self._obs, *self._rewards, *self._terminations,
-                 *self._events, *([self._success] if self._success else [])]
+                 *self._time_outs, *self._events, *([self._success] if self._success else [])]
         self._terms_made = True
         shared = list(self._shared.values())
         self._pre_physics = [b.pre_physics for b in every if b.pre_physics is not None]
@@ -200,6 +202,11 @@ class RobotTask(Task):
 
     def terminations(self) -> dict[str, torch.Tensor]:
         return {b.name: b.compute() for b in self._terminations}
+
+    def time_outs(self) -> torch.Tensor | None:
+        if not self._time_outs:
+            return None
+        return torch.stack([b.compute() for b in self._time_outs]).any(dim=0)
 
     def reset(self, mask: torch.Tensor, rng: EnvRandom) -> None:
         self.action.masked_fill_(mask[:, None], 0.0)

@@ -1,4 +1,5 @@
-"""Termination terms: each returns a boolean `[num_envs]`; time-outs are the env's business."""
+"""Termination terms: each returns a boolean `[num_envs]`; those configured `time_out` end the
+episode as a time-out (`RobotTask.time_outs`), the others as a failure."""
 
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ import torch
 
 from labcli.envs.mdp import config as c
 from labcli.envs.mdp import sensors
+from labcli.errors import LabError
 
 if TYPE_CHECKING:
     from labcli.envs.mdp.task import RobotTask
@@ -35,3 +37,17 @@ class illegal_contact:  # noqa: N801 - a term, named as Isaac Lab's
 
     def __call__(self) -> torch.Tensor:
         return self.contacts().any(dim=1)
+
+
+class terrain_out_of_bounds:  # noqa: N801
+    def __init__(self, task: RobotTask, cfg: c.TerrainOutOfBounds):
+        if task.terrain is None:
+            raise LabError("termination terrain_out_of_bounds reads the terrain, and the task "
+                           "has none", "give env.terrain, or leave the term out (null)")
+        terrain, robot = task.terrain.cfg, task.robot
+        half = [terrain.rows * terrain.size / 2, len(terrain.columns()) * terrain.size / 2]
+        self.limit = task.constant([h + terrain.border - cfg.margin for h in half])
+        self.robot = robot
+
+    def __call__(self) -> torch.Tensor:
+        return (self.robot.root_xy.abs() > self.limit).any(dim=1)

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 from typing import Annotated, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 Range = tuple[float, float]
 
@@ -107,10 +107,19 @@ class TerrainConfig(BaseModel):
     max_start_level: int = Field(5, ge=0, description="with the curriculum, new envs start on "
                                  "a random level up to this")
     difficulty: Range = Field((0.0, 1.0), description="of the first row and the last")
-    types: dict[str, SubTerrain] = Field(min_length=1)
+    types: dict[str, SubTerrain | None] = Field(
+        min_length=1, description="by name; a type set to null is left out (--set "
+        "env.terrain.types.stairs=null)")
+
+    @field_validator("types")
+    @classmethod
+    def _drop_left_out(cls, types: dict[str, SubTerrain | None]) -> dict[str, SubTerrain]:
+        return {name: sub for name, sub in types.items() if sub is not None}
 
     @model_validator(mode="after")
     def _fits(self) -> TerrainConfig:
+        if not self.types:
+            raise ValueError("every terrain type is left out (null): keep at least one")
         cells = self.size / self.horizontal_scale
         if abs(cells - round(cells)) > 1e-6 or round(cells) < 4:
             raise ValueError(f"size {self.size} m is not a whole number (at least 4) of "
