@@ -45,14 +45,14 @@ def _ray_heights(model: mujoco.MjModel, points: np.ndarray) -> np.ndarray:
     """The terrain's surface under each (x, y), by MuJoCo's ray casting from 10 m up."""
     data = mujoco.MjData(model)
     mujoco.mj_forward(model, data)
-    terrain = model.body(tm.BODY).id
+    terrain = set(tm.geom_ids(model))
     geom = np.zeros(1, np.int32)
     out = []
     for x, y in points:
         # Static geoms only (flg_static), the robot's excluded by body: its trunk is at x = y = 0.
         dist = mujoco.mj_ray(model, data, np.array([x, y, 10.0]), np.array([0.0, 0.0, -1.0]),
                              None, 1, model.body("trunk").id, geom)
-        assert dist >= 0 and model.geom_bodyid[geom[0]] == terrain, (x, y)
+        assert dist >= 0 and geom[0] in terrain, (x, y)
         out.append(10.0 - dist)
     return np.array(out)
 
@@ -97,13 +97,13 @@ def test_the_ground_plane_gives_way_to_the_terrain_with_its_contact_settings():
     planes = [g for g in range(model.ngeom) if model.geom_type[g] == mujoco.mjtGeom.mjGEOM_PLANE]
     assert planes == []
     floor = mujoco.MjModel.from_xml_path(str(GO1)).geom("floor")
-    terrain = [g for g in range(model.ngeom) if model.geom_bodyid[g] == model.body(tm.BODY).id]
+    terrain = tm.geom_ids(model)
+    assert all(model.geom_bodyid[g] == 0 for g in terrain)  # the world's: posed once
     assert len(terrain) > 8
     for g in terrain:
         assert model.geom_contype[g] == floor.contype and model.geom_conaffinity[g] == \
             floor.conaffinity
         assert np.array_equal(model.geom_friction[g], floor.friction)
-    assert model.body(tm.BODY).mass == 0
 
 
 def test_every_start_point_is_on_the_surface_mujoco_sees():
@@ -168,7 +168,7 @@ def test_a_go1_stands_on_the_hardest_patch_of_each_type():
     data = mujoco.MjData(model)
     home = model.key("home")
     feet = {model.geom(f"{leg}_foot").id for leg in ("FL", "FR", "RL", "RR")}
-    ground = model.body(tm.BODY).id
+    ground = set(tm.geom_ids(model))
     for col, name in enumerate(terrain.columns):
         mujoco.mj_resetDataKeyframe(model, data, home.id)
         x, y, z = terrain.origins[-1, col]
@@ -178,8 +178,7 @@ def test_a_go1_stands_on_the_hardest_patch_of_each_type():
         # On its feet on the terrain, neither through it nor fallen.
         assert data.qpos[2] - z == pytest.approx(home.qpos[2], abs=0.05), name
         touching = {int(g) for c in data.contact[:data.ncon] for g in c.geom
-                    if model.geom_bodyid[c.geom[0]] == ground
-                    or model.geom_bodyid[c.geom[1]] == ground}
+                    if c.geom[0] in ground or c.geom[1] in ground}
         assert touching & feet == feet, name
 
 

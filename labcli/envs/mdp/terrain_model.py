@@ -1,8 +1,8 @@
 """A `TerrainConfig` written into a model's MjSpec: each patch a height field or a stack of
-boxes under one static body, `terrain`, in place of the model's ground planes (whose contact
-settings the terrain's geoms take over), and a flat border around the grid. The grid is centred
-on the world's origin, rows along x. Built from the config's seed alone: the same config gives
-the same geometry, which a resumed or played run rebuilds.
+boxes, geoms of the world body named `terrain/<n>`, in place of the model's ground planes
+(whose contact settings the terrain's geoms take over), and a flat border around the grid. The
+grid is centred on the world's origin, rows along x. Built from the config's seed alone: the
+same config gives the same geometry, which a resumed or played run rebuilds.
 """
 
 from __future__ import annotations
@@ -15,7 +15,9 @@ import numpy as np
 
 from labcli.envs.mdp import terrain as t
 
-BODY = "terrain"
+# The terrain's geoms are the world body's own: MuJoCo computes their poses once, not on each
+# step as for any other body's (on a 2-core CPU, go1 on stairs stepped 2× faster so).
+PREFIX = "terrain/"
 BASE = 1.0  # m of solid ground under every patch's lowest point
 FLAT_EDGE = 0.25  # m: height-field patches end flat at height 0, to meet their neighbours
 COLORS = {"flat": (0.45, 0.47, 0.50, 1), "random_rough": (0.42, 0.50, 0.38, 1),
@@ -43,7 +45,8 @@ class Terrain:
 def apply(spec: mujoco.MjSpec, cfg: t.TerrainConfig) -> Terrain:
     """Replace the model's ground planes with `cfg`'s terrain; returns where each patch is."""
     contact = _take_ground(spec)
-    body = spec.worldbody.add_body(name=BODY)
+    body = spec.worldbody
+    first = len(body.geoms)
     rng = np.random.default_rng(cfg.seed)
     columns = cfg.columns()
     rows, cols = cfg.rows, len(columns)
@@ -63,9 +66,8 @@ def apply(spec: mujoco.MjSpec, cfg: t.TerrainConfig) -> Terrain:
             origins[row, col] = (*centre, top)
             difficulty[row, col] = level
     _border(body, cfg, rows * cfg.size, cols * cfg.size)
-    for i, geom in enumerate(body.geoms):
-        geom.name = geom.name or f"terrain_{i}"
-        geom.mass = 0  # static: without this its boxes would weigh as solids
+    for i, geom in enumerate(list(body.geoms)[first:]):
+        geom.name = f"{PREFIX}{i}"
         for attr in CONTACT:
             if attr in contact:
                 setattr(geom, attr, contact[attr])
@@ -251,8 +253,7 @@ def height_map(model: mujoco.MjModel, resolution: float) -> tuple[np.ndarray, np
     """The terrain's top surface as the compiled model holds it, sampled every `resolution`
     metres over its boxes' and height fields' extent: (heights [ny, nx], extent [x0, x1, y0,
     y1]). Read from the model's geoms, not from the generator: what MuJoCo collides with."""
-    body = model.body(BODY).id
-    geoms = [g for g in range(model.ngeom) if model.geom_bodyid[g] == body]
+    geoms = geom_ids(model)
     boxes = [g for g in geoms if model.geom_type[g] == mujoco.mjtGeom.mjGEOM_BOX]
     fields = [g for g in geoms if model.geom_type[g] == mujoco.mjtGeom.mjGEOM_HFIELD]
     reach = np.array([[*(model.geom_pos[g, :2] - _half(model, g)),
@@ -280,6 +281,11 @@ def height_map(model: mujoco.MjModel, resolution: float) -> tuple[np.ndarray, np
                     rows - 1).astype(int)
         heights[lo_y:hi_y, lo_x:hi_x] = cz + data[np.ix_(r, c)] * top
     return heights, np.array([x0, x1, y0, y1])
+
+
+def geom_ids(model: mujoco.MjModel) -> list[int]:
+    """The terrain's geoms in a compiled model."""
+    return [g for g in range(model.ngeom) if model.geom(g).name.startswith(PREFIX)]
 
 
 def _half(model: mujoco.MjModel, g: int) -> np.ndarray:
