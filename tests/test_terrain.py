@@ -419,3 +419,37 @@ def test_a_robot_at_the_terrains_edge_ends_its_episode_as_a_time_out():
     _, _, terminated, truncated, _ = env.step(torch.zeros(4, 12))
     assert truncated.tolist() == [True, False, True, False]
     assert not terminated.any()
+
+
+def test_upright_against_the_terrain_is_square_to_its_slope():
+    from labcli.envs.mdp import config as c
+    from labcli.envs.mdp import rewards
+
+    types = {"slope": {"type": "pyramid_slope", "platform": 1.0, "slope": [0.3, 0.3]}}
+    env = _go1_on_terrain(types=types, cols=1)
+    task = env.task
+    grid = task.terrain
+    x0, y0, _ = grid.origins[1, 0].tolist()
+    # Half-way down the slope's +x face it falls 0.3 m a metre along x.
+    on_slope = torch.tensor([[x0 + 1.2, y0]] * 8, dtype=torch.float64)
+    expected = torch.tensor([0.3, 0.0, 1.0], dtype=torch.float64) / (1 + 0.3**2) ** 0.5
+    assert torch.allclose(grid.normal(on_slope, 0.3), expected.expand(8, 3), atol=1e-6)
+    terrain = c.FlatOrientationL2(weight=-1.0, reference="terrain")
+    gravity = c.FlatOrientationL2(weight=-1.0)
+
+    def level_at(xy: torch.Tensor) -> None:  # the robots' roots moved there, upright
+        state = env.get_state()
+        state["qpos"][:, :2] = xy
+        state["qpos"][:, 3:7] = torch.tensor([1.0, 0.0, 0.0, 0.0], dtype=torch.float64)
+        env.set_state(state)
+        task.update()
+
+    # At the platform's centre the ground under the base is level, as the world.
+    level_at(torch.tensor([[x0, y0]] * 8, dtype=torch.float64))
+    assert torch.allclose(rewards.flat_orientation_l2(task, terrain),
+                          rewards.flat_orientation_l2(task, gravity), atol=1e-12)
+    # On the slope, still level: tilted from the terrain's normal by the slope.
+    level_at(on_slope)
+    assert torch.allclose(rewards.flat_orientation_l2(task, terrain),
+                          torch.full((8,), 0.3**2 / (1 + 0.3**2), dtype=torch.float64),
+                          atol=1e-6)

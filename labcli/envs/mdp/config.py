@@ -273,10 +273,20 @@ class JointAccL2(RewardTerm):
     impl: ClassVar[str] = "labcli.envs.mdp.rewards:joint_acc_l2"
 
 
+# What "upright" is measured against: the world's up, or the terrain's normal under the base
+# (its slope over `span` metres each way, from env.terrain): upright on a slope is then
+# square to the slope.
+Reference = Literal["gravity", "terrain"]
+
+
 class FlatOrientationL2(RewardTerm):
-    """The squared horizontal part of gravity in the root's frame."""
+    """The squared horizontal part of gravity in the root's frame (with `reference` terrain:
+    of the terrain's normal under the base)."""
 
     impl: ClassVar[str] = "labcli.envs.mdp.rewards:flat_orientation_l2"
+    reference: Reference = "gravity"
+    span: float = Field(0.3, gt=0, description="m each way over which the terrain's slope "
+                        "is taken")
 
 
 class LinVelZL2(RewardTerm):
@@ -345,11 +355,15 @@ class TrackAngularVelocity(CommandRef, RewardTerm):
 class UprightExp(RewardTerm):
     """exp(-|xy of gravity's direction in the body's frame|^2 / std^2): 1 upright, falling off
     with the tilt (|xy|^2 is sin^2 of it), on flat ground: mjlab's `upright`. `body`: None for
-    the root (the G1's recipe names "torso_link")."""
+    the root (the G1's recipe names "torso_link"). With `reference` terrain, the terrain's
+    normal under the root in place of gravity's direction."""
 
     impl: ClassVar[str] = "labcli.envs.mdp.rewards:upright"
     std: float = Field(math.sqrt(0.2), gt=0)
     body: str | None = None
+    reference: Reference = "gravity"
+    span: float = Field(0.3, gt=0, description="m each way over which the terrain's slope "
+                        "is taken")
 
 
 PerJoint = Annotated[dict[str, Annotated[float, Field(gt=0)]], Field(min_length=1)]

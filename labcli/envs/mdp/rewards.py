@@ -103,7 +103,20 @@ class joint_acc_l2:  # noqa: N801
 
 
 def flat_orientation_l2(task: RobotTask, cfg: c.FlatOrientationL2) -> torch.Tensor:
-    return task.robot.projected_gravity_b[:, :2].square().sum(dim=1)
+    if cfg.reference == "gravity":
+        return task.robot.projected_gravity_b[:, :2].square().sum(dim=1)
+    return _terrain_normal_b(task, cfg.span)[:, :2].square().sum(dim=1)
+
+
+def _terrain_normal_b(task: RobotTask, span: float) -> torch.Tensor:
+    """The terrain's normal under the root, in the root's frame `[n, 3]` (Rᵀn as nᵀR); a term
+    that reads it needs env.terrain."""
+    if task.terrain is None:
+        raise LabError("a reward measures uprightness against the terrain, and the task has "
+                       "none", "give env.terrain, or set the term's reference to gravity")
+    r = task.robot
+    return task.robot.per_state(("terrain_normal_b", span), lambda: torch.matmul(
+        task.terrain.normal(r.root_xy, span)[:, None, :], r.rotation)[:, 0])
 
 
 def lin_vel_z_l2(task: RobotTask, cfg: c.LinVelZL2) -> torch.Tensor:
@@ -241,7 +254,12 @@ class upright:  # noqa: N801
 
     def __init__(self, task: RobotTask, cfg: c.UprightExp):
         self.inv_var = 1.0 / cfg.std**2
-        if cfg.body is None:
+        if cfg.reference == "terrain":
+            if cfg.body is not None:
+                raise LabError("upright against the terrain is measured at the root",
+                               "leave the term's body out (null), or set reference gravity")
+            self.gravity_xy = lambda: _terrain_normal_b(task, cfg.span)[:, :2]
+        elif cfg.body is None:
             self.gravity_xy = lambda: task.robot.projected_gravity_b[:, :2]
         else:
             axes = sensors.columns(task, [[s.name] for s in _axes(cfg.body)])

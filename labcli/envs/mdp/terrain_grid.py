@@ -73,6 +73,16 @@ class TerrainGrid:
         row = index[..., 1].clamp(0, self.map.shape[0] - 1)
         return self.map[row, column]
 
+    def normal(self, xy: torch.Tensor, span: float) -> torch.Tensor:
+        """The terrain's unit normal `[n, 3]` under points `[n, 2]`: its slope taken `span`
+        metres each way along x and y (a stair's edge is averaged over the span)."""
+        dx = xy.new_tensor([span, 0.0])
+        dy = xy.new_tensor([0.0, span])
+        slope_x = (self.heights(xy + dx) - self.heights(xy - dx)) / (2 * span)
+        slope_y = (self.heights(xy + dy) - self.heights(xy - dy)) / (2 * span)
+        normal = torch.stack((-slope_x, -slope_y, torch.ones_like(slope_x)), dim=1)
+        return normal / torch.linalg.vector_norm(normal, dim=1, keepdim=True)
+
     def after_step(self) -> None:
         torch.linalg.vector_norm(self.robot.root_xy - self.start, dim=1, out=self.walked)
 
