@@ -6,6 +6,7 @@ import mujoco
 import numpy as np
 import torch
 
+from labcli.envs.mdp import terrain_model
 from labcli.envs.render import gl
 from labcli.errors import LabError, first_line
 
@@ -23,7 +24,9 @@ class SceneRenderer:
         # The offscreen buffer bounds the image; a larger request would be refused.
         self.size = (min(height, model.vis.global_.offheight),
                      min(width, model.vis.global_.offwidth))
-        self.camera = 0 if model.ncam else -1
+        self.camera: int | mujoco.MjvCamera = 0 if model.ncam else -1
+        if terrain_model.geom_ids(model):
+            self.camera = _above(model)
         self._renderer: mujoco.Renderer | None = None
 
     def sync(self, qpos: torch.Tensor, qvel: torch.Tensor) -> mujoco.MjData:
@@ -48,6 +51,19 @@ class SceneRenderer:
     def close(self) -> None:
         if self._renderer is not None:
             self._renderer.close()
+
+
+def _above(model: mujoco.MjModel) -> mujoco.MjvCamera:
+    """On terrain, a camera that follows the robot from above and behind: a robot's own camera,
+    level with it a metre or two to the side, looks into the walls of the next patch's stairs.
+    Tracks the floating base (the first body with a free joint), else the first body."""
+    free = [b for b in range(1, model.nbody) if model.body_jntnum[b]
+            and model.jnt_type[model.body_jntadr[b]] == mujoco.mjtJoint.mjJNT_FREE]
+    camera = mujoco.MjvCamera()
+    camera.type = mujoco.mjtCamera.mjCAMERA_TRACKING
+    camera.trackbodyid = free[0] if free else min(1, model.nbody - 1)
+    camera.distance, camera.elevation, camera.azimuth = 3.0, -35.0, 135.0
+    return camera
 
 
 def unavailable() -> None:
