@@ -380,6 +380,7 @@ class LabVecEnv(gym.vector.VectorEnv):
             "control_dt": self.step_dt,
             "physics_dt": self.step_dt / self.cfg.decimation,
             "decimation": self.cfg.decimation,
+            **({"deployment": deployed} if (deployed := self.task.deployment()) else {}),
         }
 
     # resume ----------------------------------------------------------------------------------

@@ -95,6 +95,13 @@ class Task:
         """Boolean `[num_envs]` per termination cause (time-outs are the env's business)."""
         return {}
 
+    def deployment(self) -> dict[str, Any]:
+        """What a deployer wires around the exported policy besides its inputs' names and
+        units: for a robot, each action's joint, default position, gains, limits, scale and
+        offset, each observation term's scale and clip, each command's ranges. `lab export`
+        writes it into the metadata. The default: nothing more."""
+        return {}
+
     def time_outs(self) -> torch.Tensor | None:
         """Boolean `[num_envs]`: envs whose episode ends now as a time-out, besides the
         episode's length (Isaac Lab's terminations with `time_out=True`, such as a robot at the

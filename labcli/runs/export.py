@@ -81,7 +81,13 @@ def _export_onnx(policy: torch.nn.Module, example: torch.Tensor, path: Path,
     import onnx
 
     model = onnx.load(str(path))
-    onnx.helper.set_model_props(model, {METADATA_KEY: json.dumps(metadata)})
+    props = {METADATA_KEY: json.dumps(metadata)}
+    if "deployment" in metadata:  # a robot's, also as mjlab's exports name it
+        from labcli.envs.mdp import deployment
+
+        props.update(deployment.mjlab_keys(
+            metadata["deployment"], [o["name"] for o in metadata["input"]["observations"]]))
+    onnx.helper.set_model_props(model, props)
     onnx.save(model, str(path))
 
 
@@ -185,13 +191,16 @@ def describe(loaded: LoadedPolicy, fmt: Format, path: Path) -> dict[str, Any]:
         "exported": datetime.now().isoformat(timespec="seconds"),
         "versions": {"lab": __version__,
                      **{d: v for d in dists if d and (v := registry.installed(d))}},
+        # Raw observations in: a normalizer the policy learned is part of the network.
         "input": {"name": "obs", "dtype": "float32", "shape": ["batch", len(io_["observations"])],
                   "observations": io_["observations"],
-                  "normalizer_included": not isinstance(loaded.policy.normalizer,
-                                                        torch.nn.Identity)},
+                  "normalizer_included": True,
+                  "normalizer": ("folded into the network" if not isinstance(
+                      loaded.policy.normalizer, torch.nn.Identity) else "none learned")},
         "output": {"name": "actions", "dtype": "float32", "shape": ["batch", len(io_["actions"])],
                    "range": io_["action_range"], "actions": io_["actions"],
                    "deterministic": True},
         "timing": {key: io_[key] for key in ("control_dt", "physics_dt", "decimation")
                    if key in io_},
+        **({"deployment": io_["deployment"]} if "deployment" in io_ else {}),
     }

@@ -30,7 +30,7 @@ import torch
 
 from labcli import refs
 from labcli.envs import models
-from labcli.envs.mdp import robot_model, sensors, terrain_model
+from labcli.envs.mdp import deployment, robot_model, sensors, terrain_model
 from labcli.envs.mdp.config import Group, RobotTaskConfig, Term
 from labcli.envs.mdp.robot import Robot
 from labcli.envs.mdp.terrain_grid import TerrainGrid
@@ -202,6 +202,9 @@ class RobotTask(Task):
 
     def terminations(self) -> dict[str, torch.Tensor]:
         return {b.name: b.compute() for b in self._terminations}
+
+    def deployment(self) -> dict[str, Any]:
+        return deployment.describe(self)
 
     def time_outs(self) -> torch.Tensor | None:
         if not self._time_outs:

@@ -1,0 +1,123 @@
+"""What a deployer wires around an exported robot policy besides the network, read from the task
+as built: each action's joint, actuator, default position, PD gains, limits, scale and offset;
+each observation term's columns, scale, clip and training noise; each command's fields and
+ranges. `lab export` writes it into the policy's metadata (and, for ONNX, also under the keys
+mjlab's exports use).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING, Any
+
+import mujoco
+
+if TYPE_CHECKING:
+    from labcli.envs.mdp.task import RobotTask
+
+# Where each observation term's value comes from on a robot: its own sensors and state, the
+# commands it is given, or the policy's last output.
+COMMAND_TERMS = {"generated_commands"}
+ACTION_TERMS = {"last_action"}
+
+
+def describe(task: RobotTask) -> dict[str, Any]:
+    return {"joints": _joints(task), "observations": _observations(task),
+            "commands": _commands(task)}
+
+
+def _joints(task: RobotTask) -> list[dict[str, Any]]:
+    """In action order: an action i drives actuator i (`task.action_names`)."""
+    model, act = task.model, task.actuation
+    scale = act.scale[0].tolist()
+    offset = act.offset[0].tolist() if act.offset is not None else [0.0] * model.nu
+    default = task.robot.default_joint_pos[0].tolist()
+    rows = []
+    for i, name in enumerate(task.action_names):
+        kp, kd = _gains(model, i)
+        rows.append({
+            "joint": name, "actuator": model.actuator(i).name, "default_position": default[i],
+            "stiffness": kp, "damping": kd, "effort_limit": _effort_limit(model, i),
+            "action_scale": scale[i], "action_offset": offset[i],
+            "command": "position target" if kp is not None else "torque"})
+    return rows
+
+
+def _gains(model: mujoco.MjModel, i: int) -> tuple[float | None, float | None]:
+    """A position servo's (kp, kd): MuJoCo's fixed gain and affine bias (0, -kp, -kd); None
+    for a motor, whose command is the torque itself."""
+    fixed = model.actuator_gaintype[i] == mujoco.mjtGain.mjGAIN_FIXED
+    affine = model.actuator_biastype[i] == mujoco.mjtBias.mjBIAS_AFFINE
+    if not (fixed and affine):
+        return None, None
+    return float(model.actuator_gainprm[i, 0]), float(-model.actuator_biasprm[i, 2])
+
+
+def _effort_limit(model: mujoco.MjModel, i: int) -> float | None:
+    """The actuator's force range, else its joint's actuator-force range; None if neither."""
+    if model.actuator_forcelimited[i]:
+        return float(model.actuator_forcerange[i, 1])
+    joint = model.actuator_trnid[i, 0]
+    if model.jnt_actfrclimited[joint]:
+        return float(model.jnt_actfrcrange[joint, 1])
+    return None
+
+
+def _observations(task: RobotTask) -> list[dict[str, Any]]:
+    """Per term, in input order: the term's columns (the input's names), and what the task did
+    to its raw value, in that order: noise in training (uniform in ±noise), clip, scale."""
+    rows, start = [], 0
+    names = task.observation_names
+    for built in task._obs:
+        width = len(task._names(built))
+        cfg = built.cfg
+        function = type(cfg).impl.rsplit(":", 1)[1]
+        rows.append({
+            "term": built.name, "columns": [start, start + width],
+            "names": names[start:start + width],
+            "source": ("command" if function in COMMAND_TERMS else
+                       "last action" if function in ACTION_TERMS else "robot"),
+            "scale": cfg.scale, "clip": list(cfg.clip) if cfg.clip else None,
+            "training_noise": cfg.noise,
+            # The term's own numbers (a height scan's grid and offset), to compute it alike.
+            **({"settings": own} if (own := cfg.model_dump(
+                mode="json", exclude={"scale", "clip", "noise"})) else {})})
+        start += width
+    return rows
+
+
+def _commands(task: RobotTask) -> list[dict[str, Any]]:
+    """Each command term's fields and the ranges training drew them from."""
+    rows = []
+    for name, built in task._commands.items():
+        fields = getattr(built.made, "names", None) or []
+        ranges = {f: list(getattr(built.cfg, f)) for f in fields
+                  if isinstance(getattr(built.cfg, f, None), tuple)}
+        rows.append({"name": name, "fields": fields, "ranges": ranges})
+    return rows
+
+
+def mjlab_keys(deployment: dict[str, Any], observation_names: list[str]) -> dict[str, str]:
+    """The deployment in the metadata keys of mjlab's ONNX exports, each a comma-separated list
+    (joint order = action order; a motor's gains are 0)."""
+    joints = deployment["joints"]
+    terms = deployment["observations"]
+
+    def csv(values: list[Any]) -> str:
+        return ",".join(str(v) for v in values)
+
+    def clip(term: dict[str, Any]) -> list[float]:
+        return term["clip"] or [-math.inf, math.inf]
+
+    return {
+        "joint_names": csv([j["joint"] for j in joints]),
+        "joint_stiffness": csv([j["stiffness"] or 0.0 for j in joints]),
+        "joint_damping": csv([j["damping"] or 0.0 for j in joints]),
+        "default_joint_pos": csv([j["default_position"] for j in joints]),
+        "action_scale": csv([j["action_scale"] for j in joints]),
+        "command_names": csv([c["name"] for c in deployment["commands"]]),
+        "observation_names": csv([t["term"] for t in terms]),
+        "observation_terms_scale": csv([t["scale"] for t in terms]),
+        "observation_terms_clip": csv([v for t in terms for v in clip(t)]),
+        "observation_columns": csv(observation_names),
+    }
