@@ -61,6 +61,10 @@ def test_a_go1_export_says_how_to_drive_each_joint_and_what_commands_it_takes(tm
     assert terms[-1]["columns"][1] == len(names)
     assert {t["term"]: t["source"] for t in terms}["velocity_commands"] == "command"
     assert meta["input"]["normalizer_included"] is True
+    units = {o["name"]: o["unit"] for o in meta["input"]["observations"]}
+    assert all(units.values()), [name for name, unit in units.items() if not unit]
+    assert units["velocity_commands.ang_vel_z"] == "rad/s"
+    assert units["joint_pos.FL_calf_joint"] == "rad (m for a slide joint) from the default pose"
     # mjlab's keys, for deployment code written against its exports.
     assert props["joint_names"].split(",") == [j["joint"] for j in joints]
     assert [float(v) for v in props["default_joint_pos"].split(",")] == pytest.approx(GO1_HOME)
@@ -76,6 +80,7 @@ def test_an_ant_export_carries_its_observation_scales(tmp_path):
     assert scales["joint_vel_rel"] == 0.2
     assert [s for name, s in scales.items() if "force" in name or "wrench" in name] == [0.1]
     assert props["observation_terms_scale"].split(",") == [str(s) for s in scales.values()]
+    assert all(o["unit"] for o in meta["input"]["observations"])
     # ant's motors: the action is the torque's scale, no gains.
     for joint in meta["deployment"]["joints"]:
         assert joint["stiffness"] is None and joint["command"] == "torque"

@@ -26,6 +26,7 @@ class UniformVelocityCommand:
     envs' yaw rates steered from the new state, which the next observation shows."""
 
     names = ["lin_vel_x", "lin_vel_y", "ang_vel_z"]
+    units = ["m/s, root frame", "m/s, root frame", "rad/s"]
     carried = ("command", "heading", "time_left", "heading_env", "standing_env", "forward_env",
                "errors", "steps", "mean_errors", "averaged_error")
 

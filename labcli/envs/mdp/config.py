@@ -94,6 +94,9 @@ class ObsTerm(RangeChecked):
     (with the task's `observation_noise` on: training; `lab play` turns it off unless asked),
     clipped to `clip`, times `scale`."""
 
+    # The raw value's unit and convention, per column (before noise, clip and scale), which
+    # `lab export` writes for deployers; a term made per column may give `units` instead.
+    unit: ClassVar[str] = ""
     scale: float = 1.0
     clip: Range | None = None
     noise: float = Field(0.0, ge=0.0)
@@ -101,26 +104,31 @@ class ObsTerm(RangeChecked):
 
 class BaseHeight(ObsTerm):
     impl: ClassVar[str] = "labcli.envs.mdp.observations:base_height"
+    unit: ClassVar[str] = "m, the root above the ground under it"
 
 
 class BaseLinVel(ObsTerm):
     """The root body's linear velocity in its own frame (m/s)."""
 
     impl: ClassVar[str] = "labcli.envs.mdp.observations:base_lin_vel"
+    unit: ClassVar[str] = "m/s, root frame"
 
 
 class BaseAngVel(ObsTerm):
     """The root body's angular velocity in its own frame (rad/s)."""
 
     impl: ClassVar[str] = "labcli.envs.mdp.observations:base_ang_vel"
+    unit: ClassVar[str] = "rad/s, root frame"
 
 
 class ProjectedGravity(ObsTerm):
     impl: ClassVar[str] = "labcli.envs.mdp.observations:projected_gravity"
+    unit: ClassVar[str] = "gravity's unit vector, root frame"
 
 
 class BaseYawRoll(ObsTerm):
     impl: ClassVar[str] = "labcli.envs.mdp.observations:base_yaw_roll"
+    unit: ClassVar[str] = "rad"
 
 
 class Target(Term):
@@ -135,14 +143,17 @@ class TargetObs(Target, ObsTerm):
 
 class AngleToTarget(TargetObs):
     impl: ClassVar[str] = "labcli.envs.mdp.observations:base_angle_to_target"
+    unit: ClassVar[str] = "rad to the target, wrapped to [-pi, pi)"
 
 
 class UpProj(ObsTerm):
     impl: ClassVar[str] = "labcli.envs.mdp.observations:base_up_proj"
+    unit: ClassVar[str] = "cosine of the root's tilt"
 
 
 class HeadingProj(TargetObs):
     impl: ClassVar[str] = "labcli.envs.mdp.observations:base_heading_proj"
+    unit: ClassVar[str] = "cosine of the angle from the root's x axis to the target"
 
 
 class HeightScan(ObsTerm):
@@ -152,6 +163,7 @@ class HeightScan(ObsTerm):
     order: x (back to front) fastest, then y (right to left). Needs env.terrain."""
 
     impl: ClassVar[str] = "labcli.envs.mdp.observations:height_scan"
+    unit: ClassVar[str] = "m, the root above the terrain at each point, minus offset"
     length: float = Field(1.6, ge=0, description="m along the base's x")
     width: float = Field(1.0, ge=0, description="m along the base's y")
     resolution: float = Field(0.1, gt=0, description="m between points")
@@ -164,16 +176,19 @@ class JointPos(ObsTerm):
     """Joint positions relative to the default pose (rad or m)."""
 
     impl: ClassVar[str] = "labcli.envs.mdp.observations:joint_pos_rel"
+    unit: ClassVar[str] = "rad (m for a slide joint) from the default pose"
 
 
 class JointPosNormalized(ObsTerm):
     """Joint positions mapped from their limits to [-1, 1]."""
 
     impl: ClassVar[str] = "labcli.envs.mdp.observations:joint_pos_limit_normalized"
+    unit: ClassVar[str] = "-1 to 1 over the joint's range"
 
 
 class JointVel(ObsTerm):
     impl: ClassVar[str] = "labcli.envs.mdp.observations:joint_vel_rel"
+    unit: ClassVar[str] = "rad/s (m/s for a slide joint)"
 
 
 class GeneratedCommands(CommandRef, ObsTerm):
@@ -184,6 +199,7 @@ class GeneratedCommands(CommandRef, ObsTerm):
 
 class LastAction(ObsTerm):
     impl: ClassVar[str] = "labcli.envs.mdp.observations:last_action"
+    unit: ClassVar[str] = "the policy's last action"
 
 
 class BodyWrench(ObsTerm):
@@ -200,6 +216,7 @@ class ContactForces(ObsTerm):
     that the task adds to the model."""
 
     impl: ClassVar[str] = "labcli.envs.mdp.observations:contact_forces"
+    unit: ClassVar[str] = "N, world frame"
     bodies: Bodies
 
 

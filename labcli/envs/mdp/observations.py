@@ -90,6 +90,7 @@ class generated_commands:  # noqa: N801 - a term, named as Isaac Lab's
     def __init__(self, task: RobotTask, cfg: c.GeneratedCommands):
         self.command = task.command(cfg.command)
         self.names = getattr(self.command, "names", None)
+        self.units = getattr(self.command, "units", None)
 
     def __call__(self) -> torch.Tensor:
         return self.command()
@@ -137,6 +138,8 @@ class body_incoming_wrench:  # noqa: N801 - a term, named as Isaac Lab's
         self.data = sensors.columns(task, [sensors.wrench_names(b) for b in self.bodies])
         self.names = [f"{b}.{axis}" for b in self.bodies
                       for axis in ("fx", "fy", "fz", "tx", "ty", "tz")]
+        self.units = ["N, body frame"] * 3 + ["N m, body frame"] * 3
+        self.units *= len(self.bodies)
 
     @staticmethod
     def sensors(model: mujoco.MjModel, cfg: c.BodyWrench) -> list[sensors.Sensor]:

@@ -168,6 +168,10 @@ class RobotTask(Task):
                            "give env.observations at least one term")
         names = [self._names(b) for b in self._obs]
         self.observation_names = [name for term in names for name in term]
+        self.observation_units = {
+            name: unit for built, columns in zip(self._obs, names, strict=True)
+            for name, unit in zip(columns, getattr(built.made, "units", None)
+                                  or [type(built.cfg).unit] * len(columns), strict=True)}
         self._post = ObservationPost(self, [b.cfg for b in self._obs], [len(n) for n in names])
 
     # the env's calls ---------------------------------------------------------------------------
