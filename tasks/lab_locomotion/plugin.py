@@ -93,7 +93,7 @@ def _velocity_defaults(num_envs: int, max_iterations: int) -> dict:
         # On one H100 sb3 at 5e-4 ended its 300 iterations at 0.15-0.25 success; at 1e-3
         # (rsl_rl's and skrl's starting rate) at 0.97-0.98, 0.95 first reached after 25-26 M
         # of its 29.5 M steps (docs/benchmarks.md). The CPU's rate stays: not measured there.
-    }, max_iterations=300, steps=24, sb3={"learning_rate": 1e-3})
+    }, max_iterations=max_iterations, steps=24, sb3={"learning_rate": 1e-3})
 
 
 # mjlab's G1 velocity agent (tasks/velocity/config/g1/rl_cfg.py): 24 steps per env, [512, 256,
@@ -102,25 +102,32 @@ def _velocity_defaults(num_envs: int, max_iterations: int) -> dict:
 G1_NETWORK = [512, 256, 128]
 
 
-def _g1_defaults() -> dict:
-    defaults = _velocity_defaults(num_envs=256, max_iterations=G1_ITERATIONS)
+# Each framework's keys of the actor's and critic's layers.
+NETWORK_KEYS = {"rsl_rl": ("actor_hidden_dims", "critic_hidden_dims"), "skrl": ("hidden_sizes",),
+                "sb3": ("net_arch",), "rl_games": ("units",)}
+
+
+def _with_network(defaults: dict, network: list[int]) -> dict:
+    """`defaults` with every framework's networks of `network`'s layers."""
+    for name, settings in defaults.items():
+        for key in NETWORK_KEYS.get(name, ()):
+            settings["agent"][key] = network
+    return defaults
+
+
+def _g1_defaults(iterations: int = G1_ITERATIONS) -> dict:
+    defaults = _velocity_defaults(num_envs=256, max_iterations=iterations)
     # rl_games: the same PPO in its terms (a mini-batch a quarter of the rollout: 6 of 24 steps).
     defaults["rl_games"] = {"env": {"num_envs": 256}, "agent": {
-        "max_iterations": G1_ITERATIONS, "horizon_length": 24, "mini_epochs": 5,
+        "max_iterations": iterations, "horizon_length": 24, "mini_epochs": 5,
         "minibatch_size_per_env": 6, "learning_rate": 1e-3, "kl_threshold": 0.01,
-        "entropy_coef": 0.01, "critic_coef": 1.0, "units": G1_NETWORK},
-        "warp": {"env": {"num_envs": 4096}, "agent": {}}}
+        "entropy_coef": 0.01, "critic_coef": 1.0},
+        "warp": {"env": {"num_envs": 4096}, "agent": {"max_iterations": iterations}}}
     for name, settings in defaults.items():
-        agent = settings["agent"]
-        network = {"rsl_rl": ("actor_hidden_dims", "critic_hidden_dims"),
-                   "skrl": ("hidden_sizes",), "sb3": ("net_arch",), "rl_games": ("units",)}
-        for key in network.get(name, ()):
-            agent[key] = G1_NETWORK
-        agent.update({"rsl_rl": {"empirical_normalization": True},
-                      "skrl": {"normalize_obs": True},
-                      "sb3": {"normalize_obs": True}}.get(name, {}))
-        settings["warp"]["agent"]["max_iterations"] = G1_ITERATIONS
-    return defaults
+        settings["agent"].update({"rsl_rl": {"empirical_normalization": True},
+                                  "skrl": {"normalize_obs": True},
+                                  "sb3": {"normalize_obs": True}}.get(name, {}))
+    return _with_network(defaults, G1_NETWORK)
 
 
 # Isaac Lab's Go1 rough agents: go1-flat's with [512, 256, 128] networks, 1,500 iterations.
@@ -128,20 +135,6 @@ ROUGH_NETWORK = [512, 256, 128]
 GO1_ROUGH_ITERATIONS = 1500
 # Not yet measured: 3× g1-flat's, for the terrain curriculum's levels (mjlab runs 30,000).
 G1_ROUGH_ITERATIONS = 6000
-
-
-def _with_iterations(defaults: dict, iterations: int, network: list[int] | None = None) -> dict:
-    """`defaults` with every framework's `max_iterations` (CPU and GPU) set to `iterations`
-    and, given `network`, their networks' layers."""
-    keys = {"rsl_rl": ("actor_hidden_dims", "critic_hidden_dims"), "skrl": ("hidden_sizes",),
-            "sb3": ("net_arch",), "rl_games": ("units",)}
-    for name, settings in defaults.items():
-        for agent in (settings["agent"], settings["warp"]["agent"]):
-            agent["max_iterations"] = iterations
-            for key in keys.get(name, ()) if network is not None else ():
-                if key in settings["agent"]:
-                    settings["agent"][key] = network
-    return defaults
 
 
 @hookimpl
@@ -172,12 +165,12 @@ def register_tasks(register):
                     "slopes and rough ground, with a height scan and a terrain curriculum",
         success="at the 20 s time-out, mean tracking errors under 0.25 m/s (xy) and 0.3 rad/s "
                 "(yaw rate)",
-        framework_defaults=_with_iterations(_velocity_defaults(num_envs=256, max_iterations=1),
-                                            GO1_ROUGH_ITERATIONS, ROUGH_NETWORK)))
+        framework_defaults=_with_network(_velocity_defaults(
+            num_envs=256, max_iterations=GO1_ROUGH_ITERATIONS), ROUGH_NETWORK)))
     register(TaskSpec(
         name="g1-rough", task=TASK, config="lab_locomotion.config:G1RoughConfig", model=g1.MODEL,
         description="mjlab's Velocity-Rough-Unitree-G1: g1-flat on stairs, slopes, rough "
                     "ground and waves, with a height scan and a terrain curriculum",
         success="at the 20 s time-out, not fallen, mean tracking errors of the velocity kept "
                 "over 1 s under 0.25 m/s (xy) and 0.15 rad/s (yaw rate)",
-        framework_defaults=_with_iterations(_g1_defaults(), G1_ROUGH_ITERATIONS)))
+        framework_defaults=_g1_defaults(G1_ROUGH_ITERATIONS)))
