@@ -68,8 +68,7 @@ def _observations(task: RobotTask) -> list[dict[str, Any]]:
     to its raw value, in that order: noise in training (uniform in ±noise), clip, scale."""
     rows, start = [], 0
     names = task.observation_names
-    for built in task._obs:
-        width = len(task._names(built))
+    for built, width in zip(task._obs, task._obs_widths, strict=True):
         cfg = built.cfg
         function = type(cfg).impl.rsplit(":", 1)[1]
         rows.append({

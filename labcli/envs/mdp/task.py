@@ -172,7 +172,8 @@ class RobotTask(Task):
             name: unit for built, columns in zip(self._obs, names, strict=True)
             for name, unit in zip(columns, getattr(built.made, "units", None)
                                   or [type(built.cfg).unit] * len(columns), strict=True)}
-        self._post = ObservationPost(self, [b.cfg for b in self._obs], [len(n) for n in names])
+        self._obs_widths = [len(n) for n in names]
+        self._post = ObservationPost(self, [b.cfg for b in self._obs], self._obs_widths)
 
     # the env's calls ---------------------------------------------------------------------------
     def apply_actions(self, actions: torch.Tensor) -> None:

@@ -44,10 +44,10 @@ class terrain_out_of_bounds:  # noqa: N801
         if task.terrain is None:
             raise LabError("termination terrain_out_of_bounds reads the terrain, and the task "
                            "has none", "give env.terrain, or leave the term out (null)")
-        terrain, robot = task.terrain.cfg, task.robot
-        half = [terrain.rows * terrain.size / 2, len(terrain.columns()) * terrain.size / 2]
-        self.limit = task.constant([h + terrain.border - cfg.margin for h in half])
-        self.robot = robot
+        grid = task.terrain
+        self.limit = task.constant([count * grid.cfg.size / 2 + grid.cfg.border - cfg.margin
+                                    for count in (grid.rows, grid.cols)])
+        self.robot = task.robot
 
     def __call__(self) -> torch.Tensor:
         return (self.robot.root_xy.abs() > self.limit).any(dim=1)

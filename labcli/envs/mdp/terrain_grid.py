@@ -38,8 +38,8 @@ class TerrainGrid:
         heights, extent = tm.height_map(task.model, MAP_RESOLUTION)
         self.map = torch.as_tensor(heights, dtype=dtype, device=dev)
         self.corner = torch.as_tensor(extent[[0, 2]], dtype=dtype, device=dev)
-        self.rows, self.cols = cfg.rows, len(cfg.columns())
         self.columns = cfg.columns()
+        self.rows, self.cols = cfg.rows, len(self.columns)
         centres = torch.stack(torch.meshgrid(
             (torch.arange(self.rows, device=dev, dtype=dtype) + 0.5 - self.rows / 2) * cfg.size,
             (torch.arange(self.cols, device=dev, dtype=dtype) + 0.5 - self.cols / 2) * cfg.size,
@@ -68,7 +68,7 @@ class TerrainGrid:
     def heights(self, xy: torch.Tensor) -> torch.Tensor:
         """The terrain's height under each point `[..., 2]` (world x, y); off the map, its
         nearest edge's."""
-        index = torch.round((xy - self.corner) / MAP_RESOLUTION - 0.5).long()
+        index = torch.floor((xy - self.corner) / MAP_RESOLUTION).long()  # the sample's cell
         column = index[..., 0].clamp(0, self.map.shape[1] - 1)  # the map is [y, x]
         row = index[..., 1].clamp(0, self.map.shape[0] - 1)
         return self.map[row, column]
