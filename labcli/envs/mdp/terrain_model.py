@@ -82,21 +82,20 @@ def _take_ground(spec: mujoco.MjSpec) -> dict:
     planes = [g for g in spec.worldbody.geoms if g.type == mujoco.mjtGeom.mjGEOM_PLANE]
     contact = {attr: _copy(getattr(planes[0], attr)) for attr in CONTACT} if planes else {}
     names = {plane.name for plane in planes if plane.name}
-    if names:
-        contact.update(_pairs_to_terrain(spec, names, contact.get("priority", 0)))
+    if names and _pairs_to_terrain(spec, names, contact.get("priority", 0)):
+        # The plane's own bits stay: geoms that met it by contype meet the terrain too.
+        contact["conaffinity"] = contact.get("conaffinity", 0) | TERRAIN_BIT
     for plane in planes:
         spec.delete(plane)
     return contact
 
 
-def _pairs_to_terrain(spec: mujoco.MjSpec, planes: set[str], priority: int) -> dict:
+def _pairs_to_terrain(spec: mujoco.MjSpec, planes: set[str], priority: int) -> bool:
     """Each geom paired with a deleted plane collides with the terrain by its own bit (the
     terrain's conaffinity, no other geom's), taking the pair's contact settings as its own at
     a priority above the terrain's, so that MuJoCo uses them for those contacts. The pairs go.
-    Returns the terrain's conaffinity, with that bit."""
+    Returns whether there were any."""
     pairs = [p for p in spec.pairs if p.geomname1 in planes or p.geomname2 in planes]
-    if not pairs:
-        return {}
     for pair in pairs:
         name = pair.geomname2 if pair.geomname1 in planes else pair.geomname1
         geom = spec.geom(name)
@@ -107,7 +106,7 @@ def _pairs_to_terrain(spec: mujoco.MjSpec, planes: set[str], priority: int) -> d
         # A pair's five frictions (two sliding, torsional, two rolling); a geom's three.
         geom.friction = [pair.friction[0], pair.friction[2], pair.friction[3]]
         spec.delete(pair)
-    return {"conaffinity": TERRAIN_BIT}
+    return bool(pairs)
 
 
 def _copy(value):
