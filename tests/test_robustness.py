@@ -510,6 +510,26 @@ def wait_for_running(logs: Path, timeout: float = 120, done: str = ".candidate",
     raise AssertionError(f"the run did not write {done}")
 
 
+def test_a_run_dir_deleted_while_its_checkpoints_are_listed_holds_none(tmp_path, monkeypatch):
+    """The race the deleted-run test met 1 time in 2 fresh-clone runs: the run dir existed when
+    glob checked it and was gone when it listed it (the summary lists checkpoints)."""
+    from labcli.plugins import registry
+
+    spec = registry.get_framework("rsl_rl")
+    run_dir = tmp_path / "run"
+    run_dir.mkdir()
+    (run_dir / "model_1.pt").write_bytes(b"")
+    listing = os.scandir
+
+    def deleted_first(path):
+        if isinstance(path, (str, os.PathLike)) and Path(path) == run_dir:  # not rmtree's fds
+            shutil.rmtree(run_dir)
+        return listing(path)
+
+    monkeypatch.setattr(os, "scandir", deleted_first)
+    assert spec.checkpoints(run_dir) == []
+
+
 @pytest.mark.parametrize("framework", ["rsl_rl", "sb3", "skrl"])
 def test_a_run_dir_deleted_while_training_ends_it_in_one_line_and_stays_deleted(tmp_path,
                                                                                 framework):

@@ -94,11 +94,14 @@ class FrameworkSpec:
         labcli/runs/checkpoints.py)."""
         pattern = re.compile(re.escape(self.checkpoint_prefix) + r"(\d+)"
                              + re.escape(self.checkpoint_suffix) + "$")
-        found = []
-        for path in run_dir.glob(f"{self.checkpoint_prefix}*{self.checkpoint_suffix}"):
-            match = pattern.match(path.name)
-            if match:
-                found.append(Checkpoint(path, int(match.group(1))))
+        try:
+            paths = list(run_dir.glob(f"{self.checkpoint_prefix}*{self.checkpoint_suffix}"))
+        except FileNotFoundError:
+            # Deleted between glob's check and its listing: none, as glob says of a missing
+            # dir (the deleted run is said where it is written to).
+            paths = []
+        found = [Checkpoint(path, int(match.group(1))) for path in paths
+                 if (match := pattern.match(path.name))]
         return sorted(found, key=lambda c: c.iteration)
 
 
