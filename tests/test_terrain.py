@@ -285,7 +285,7 @@ def test_the_terrain_state_travels_with_the_task_state_and_its_levels_are_logged
         assert f"terrain/{name}" in state
     figures = env.task.episode_metrics()
     grid = env.task.terrain
-    level = grid.levels.double() / 2
+    level = grid.levels.double()
     assert torch.equal(figures["terrain/level"], level)
     # Per type, scaled by its share of the envs: its mean over all envs is the type's mean.
     assert figures["terrain/level/stairs"].mean() == pytest.approx(float(level[4:].mean()))
@@ -453,3 +453,57 @@ def test_upright_against_the_terrain_is_square_to_its_slope():
     assert torch.allclose(rewards.flat_orientation_l2(task, terrain),
                           torch.full((8,), 0.3**2 / (1 + 0.3**2), dtype=torch.float64),
                           atol=1e-6)
+
+
+def test_a_rough_run_reports_its_level_and_plays_the_whole_grid_without_the_curriculum(tmp_path):
+    import io
+    import json
+
+    from rich.console import Console
+
+    from labcli.runs import play, training
+
+    # go1-rough's stairs and rough ground on TERRAIN's small grid (settings merge into the
+    # task's: its other types are left out by name).
+    small = {**TERRAIN, "types": {"stairs": TERRAIN["types"]["stairs"],
+                                  "rough": {"platform": 1.0}, "stairs_down": None,
+                                  "boxes": None, "slope": None, "slope_down": None}}
+    outcome = training.train(
+        "go1-rough", "rsl_rl", num_envs=8, max_iterations=2, logs_dir=tmp_path,
+        console=Console(file=io.StringIO()), command=["lab", "test"],
+        overrides=["env.terrain=" + json.dumps(small), "env.episode_length_s=0.5",
+                   "agent.num_steps_per_env=16"])
+    # Every env ended an episode (0.5 s of 0.08 s steps): a level, 0 or 1, was logged.
+    assert 0.0 <= outcome.summary["terrain_level"] <= 1.0
+    # As Isaac Lab's _PLAY configs: no curriculum, so every row's patch is of a random
+    # difficulty, and `--set` may change the terrain (here, keep the stairs only).
+    loaded = play.load(run_dir=outcome.run.dir, overrides=["env.terrain.types.rough=null"])
+    try:
+        grid = loaded.env.task.terrain
+        assert not grid.cfg.curriculum and grid.columns == ["stairs", "stairs"]
+    finally:
+        loaded.env.close()
+    with pytest.raises(Exception, match="cannot change a run"):
+        play.load(run_dir=outcome.run.dir, overrides=["env.decimation=2"])
+
+
+def test_the_terrain_keeps_the_robots_scale_and_lights_all_of_it_without_shadows():
+    from labcli.envs.render.scene import SceneRenderer
+
+    plain = mujoco.MjModel.from_xml_path(str(GO1))
+    model, _ = _build(_small())
+    # MuJoCo clips what is nearer a camera than a hundredth of the extent: the grid's ~40 m
+    # would hide the robot from the video's camera.
+    assert model.stat.extent == pytest.approx(plain.stat.extent)
+    assert not model.light_castshadow.any()
+    camera = SceneRenderer(model).camera
+    assert camera.distance == pytest.approx(1.69, abs=0.01)  # 3.5 × its feet's 0.48 m
+    assert camera.distance > 10 * model.vis.map.znear * model.stat.extent
+    # A model lit only by a spotlight at its origin gets a sun over the whole grid.
+    spec = mujoco.MjSpec.from_file(str(GO1))
+    for light in spec.lights:
+        spec.delete(light)
+    spec.worldbody.add_light(type=mujoco.mjtLightType.mjLIGHT_SPOT, pos=[0, -2, 4])
+    tm.apply(spec, _small())
+    lit = spec.compile()
+    assert lit.nlight == 2 and lit.light_type[1] == mujoco.mjtLightType.mjLIGHT_DIRECTIONAL

@@ -84,6 +84,8 @@ def train(
         figures.append(f"mean return {s['mean_return']:.1f}")
     if s["success_rate"] is not None:
         figures.append(f"success {s['success_rate']:.0%}")
+    if s.get("terrain_level") is not None:
+        figures.append(f"terrain level {s['terrain_level']:.1f}")
     say(f"{outcome.run.dir}: " + ", ".join(figures))
     if settings is not None:
         say(f"videos: {videos.folder(outcome.run.dir, videos.TRAIN)}")

@@ -4,6 +4,8 @@ EPISODES = "Train/episodes"
 MEAN_RETURN = "Train/mean_reward"
 MEAN_LENGTH = "Train/mean_episode_length"
 SUCCESS_RATE = "Metrics/success_rate"
+# On a terrain with a curriculum: the mean level (row) of the ended episodes.
+TERRAIN_LEVEL = "Metrics/terrain/level"
 # + a task's episode metric (Task.episode_metrics), e.g. "base_velocity/error_vel_xy".
 TASK_METRIC = "Metrics/"
 REWARD_TERM = "Episode_Reward/"

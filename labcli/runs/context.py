@@ -165,7 +165,8 @@ class RunContext(TrainContext):
                 self.writer.add_scalar(tag, value, steps)
             self.progress.update(iteration, steps_per_s,
                                  self.last_stats.get(metrics.MEAN_RETURN),
-                                 self.last_stats.get(metrics.SUCCESS_RATE))
+                                 self.last_stats.get(metrics.SUCCESS_RATE),
+                                 self.last_stats.get(metrics.TERRAIN_LEVEL))
             if self.on_iteration is not None and self.on_iteration(iteration, steps, figures):
                 self.stop.request()
         stopping = self.stop_requested

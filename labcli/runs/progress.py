@@ -43,12 +43,14 @@ class TrainProgress:
             self._bar.__exit__(*exc)
 
     def update(self, iteration: int, steps_per_s: float, mean_return: float | None,
-               success_rate: float | None) -> None:
+               success_rate: float | None, terrain_level: float | None = None) -> None:
         parts = [f"{steps_per_s:,.0f} steps/s"]
         if mean_return is not None and not math.isnan(mean_return):
             parts.append(f"return {mean_return:.1f}")
         if success_rate is not None and not math.isnan(success_rate):
             parts.append(f"success {success_rate:.0%}")
+        if terrain_level is not None and not math.isnan(terrain_level):
+            parts.append(f"terrain level {terrain_level:.1f}")
         stats = "  ".join(parts)
         if self._bar is not None:
             self._bar.update(self._task, completed=iteration, stats=stats)

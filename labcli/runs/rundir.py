@@ -69,7 +69,8 @@ MANIFEST_FIELDS = {"task": str, "framework": str, "seed": int, "device": str, "b
 SUMMARY_FIELDS = {"state": str, "iterations": int, "steps": int, "wall_time_s": NUMBER,
                   "total_wall_time_s": NUMBER, "mean_return": (*NUMBER, type(None)),
                   "mean_episode_length": (*NUMBER, type(None)),
-                  "success_rate": (*NUMBER, type(None)), "checkpoint": (str, type(None)),
+                  "success_rate": (*NUMBER, type(None)),
+                  "terrain_level": (*NUMBER, type(None)), "checkpoint": (str, type(None)),
                   "finished": str, "error": str, "signal": int}
 
 

@@ -419,6 +419,7 @@ def _summary(ctx: RunContext, fw: Framework, run: rundir.Run, state: str,
         "mean_return": _finite_or_none(stats.get(metrics.MEAN_RETURN)),
         "mean_episode_length": _finite_or_none(stats.get(metrics.MEAN_LENGTH)),
         "success_rate": _finite_or_none(stats.get(metrics.SUCCESS_RATE)),
+        "terrain_level": _finite_or_none(stats.get(metrics.TERRAIN_LEVEL)),
         "checkpoint": found.path.name if found else None,
         "finished": datetime.now().isoformat(timespec="seconds"),
     }

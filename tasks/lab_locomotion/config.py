@@ -312,7 +312,13 @@ class Go1RoughTerminations(Go1Terminations):
     out_of_terrain_bounds: c.TerrainOutOfBounds | None = c.TerrainOutOfBounds()
 
 
+# Isaac Lab's and mjlab's _PLAY rough configs: the curriculum off, so that each episode plays on
+# a random level and type of the whole grid (and `--set env.terrain...` may pick them).
+ROUGH_PLAY = {**Go1FlatConfig.play_overrides, "terrain": {"curriculum": False}}
+
+
 class Go1RoughConfig(Go1FlatConfig):
+    play_overrides: ClassVar[dict[str, Any]] = ROUGH_PLAY
     terrain: TerrainConfig | None = Field(default_factory=go1_terrain)
     # Height fields and stair edges touch a foot at more points than a plane.
     nconmax: int | None = 40
@@ -334,6 +340,7 @@ class G1RoughTerminations(G1Terminations):
 
 
 class G1RoughConfig(G1FlatConfig):
+    play_overrides: ClassVar[dict[str, Any]] = ROUGH_PLAY
     terrain: TerrainConfig | None = Field(default_factory=t.rough)
     nconmax: int | None = 70
     observations: G1RoughObservations = G1RoughObservations()

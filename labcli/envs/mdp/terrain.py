@@ -14,7 +14,7 @@ from __future__ import annotations
 
 from typing import Annotated, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 Range = tuple[float, float]
 
@@ -107,27 +107,29 @@ class TerrainConfig(BaseModel):
     max_start_level: int = Field(5, ge=0, description="with the curriculum, new envs start on "
                                  "a random level up to this")
     difficulty: Range = Field((0.0, 1.0), description="of the first row and the last")
+    # A type left out stays in the config as null, so that a run's saved params, merged into
+    # its task's defaults again (play, resume), leave it out again.
     types: dict[str, SubTerrain | None] = Field(
         min_length=1, description="by name; a type set to null is left out (--set "
         "env.terrain.types.stairs=null)")
 
-    @field_validator("types")
-    @classmethod
-    def _drop_left_out(cls, types: dict[str, SubTerrain | None]) -> dict[str, SubTerrain]:
-        return {name: sub for name, sub in types.items() if sub is not None}
+    @property
+    def used(self) -> dict[str, SubTerrain]:
+        """The types not left out, by name."""
+        return {name: sub for name, sub in self.types.items() if sub is not None}
 
     @model_validator(mode="after")
     def _fits(self) -> TerrainConfig:
-        if not self.types:
+        if not self.used:
             raise ValueError("every terrain type is left out (null): keep at least one")
         cells = self.size / self.horizontal_scale
         if abs(cells - round(cells)) > 1e-6 or round(cells) < 4:
             raise ValueError(f"size {self.size} m is not a whole number (at least 4) of "
                              f"horizontal_scale {self.horizontal_scale} m")
-        if len(self.types) > self.cols:
-            raise ValueError(f"{len(self.types)} terrain types need at least as many columns; "
+        if len(self.used) > self.cols:
+            raise ValueError(f"{len(self.used)} terrain types need at least as many columns; "
                              f"cols is {self.cols}")
-        for name, sub in self.types.items():
+        for name, sub in self.used.items():
             if sub.platform >= self.size:
                 raise ValueError(f"types.{name}.platform {sub.platform} m does not fit a "
                                  f"patch of {self.size} m")
@@ -136,9 +138,10 @@ class TerrainConfig(BaseModel):
     def columns(self) -> list[str]:
         """Each column's type: the types' shares of `cols` by proportion, in order, each at
         least one (largest remainders get the columns left)."""
-        total = sum(t.proportion for t in self.types.values())
-        names = list(self.types)
-        exact = [self.types[n].proportion / total * self.cols for n in names]
+        used = self.used
+        total = sum(t.proportion for t in used.values())
+        names = list(used)
+        exact = [used[n].proportion / total * self.cols for n in names]
         counts = [max(1, int(e)) for e in exact]
         while sum(counts) > self.cols:  # from the most over its share that has a spare
             spare = [i for i in range(len(counts)) if counts[i] > 1]

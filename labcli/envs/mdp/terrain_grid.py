@@ -124,10 +124,11 @@ class TerrainGrid:
         torch.where(mask & ~self.started, first, self.levels, out=self.levels)
 
     def metrics(self) -> dict[str, torch.Tensor]:
-        """Each env's level over the levels there are (0 to 1): as a mean over ended episodes,
-        the curriculum's progress; and per type, scaled by the type's share of the envs, so
-        that its mean over all ended episodes is that type's mean level."""
-        level = self.levels.to(self.walked.dtype) / max(self.rows - 1, 1)
+        """Each env's level, its row (0 for the easiest), as Isaac Lab's and mjlab's
+        `terrain_levels`: as a mean over ended episodes, the curriculum's progress; and per
+        type, scaled by the type's share of the envs, so that its mean over all ended episodes
+        is that type's mean level."""
+        level = self.levels.to(self.walked.dtype)
         out = {"level": level}
         for name, columns in self._of_type.items():
             out[f"level/{name}"] = level * columns[self.types] / self._share[name]

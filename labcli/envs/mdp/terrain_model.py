@@ -45,6 +45,7 @@ class Terrain:
 def apply(spec: mujoco.MjSpec, cfg: t.TerrainConfig) -> Terrain:
     """Replace the model's ground planes with `cfg`'s terrain; returns where each patch is."""
     contact = _take_ground(spec)
+    _keep_the_robots_scale(spec)
     body = spec.worldbody
     first = len(body.geoms)
     rng = np.random.default_rng(cfg.seed)
@@ -54,7 +55,7 @@ def apply(spec: mujoco.MjSpec, cfg: t.TerrainConfig) -> Terrain:
     difficulty = np.zeros((rows, cols))
     lo, hi = cfg.difficulty
     for col, name in enumerate(columns):
-        sub = cfg.types[name]
+        sub = cfg.used[name]
         for row in range(rows):
             if cfg.curriculum:
                 level = lo + (hi - lo) * row / max(rows - 1, 1)
@@ -72,6 +73,21 @@ def apply(spec: mujoco.MjSpec, cfg: t.TerrainConfig) -> Terrain:
             if attr in contact:
                 setattr(geom, attr, contact[attr])
     return Terrain(origins, columns, difficulty)
+
+
+def _keep_the_robots_scale(spec: mujoco.MjSpec) -> None:
+    """The scene's extent stays the robot's: MuJoCo clips what is nearer a camera than a
+    hundredth of it, so a grid's 300 m extent would hide a robot from a camera 2 m away. Its
+    lights cast no shadows, whose map would spread over the whole grid in jagged bands; and
+    the sun shines on all of it where no light does (a spotlight placed at the model's origin
+    leaves a robot 80 m away in the dark)."""
+    if np.isnan(spec.stat.extent):
+        spec.stat.extent = spec.compile().stat.extent
+    for light in spec.lights:
+        light.castshadow = False
+    if not any(light.type == mujoco.mjtLightType.mjLIGHT_DIRECTIONAL for light in spec.lights):
+        spec.worldbody.add_light(type=mujoco.mjtLightType.mjLIGHT_DIRECTIONAL, dir=[0, 0, -1],
+                                 pos=[0, 0, 10], diffuse=[0.6, 0.6, 0.6], castshadow=False)
 
 
 def _take_ground(spec: mujoco.MjSpec) -> dict:

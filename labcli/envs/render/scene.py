@@ -62,8 +62,25 @@ def _above(model: mujoco.MjModel) -> mujoco.MjvCamera:
     camera = mujoco.MjvCamera()
     camera.type = mujoco.mjtCamera.mjCAMERA_TRACKING
     camera.trackbodyid = free[0] if free else min(1, model.nbody - 1)
-    camera.distance, camera.elevation, camera.azimuth = 3.0, -35.0, 135.0
+    # Near enough to see a gait, far enough to see the robot whole and the steps around it: a
+    # Go1 (its feet 0.48 m from its trunk) from 1.7 m, a G1 (0.77 m) from 2.7 m.
+    camera.distance = max(3.5 * _reach(model, camera.trackbodyid), 1.0)
+    camera.elevation, camera.azimuth = -30.0, 135.0
     return camera
+
+
+def _reach(model: mujoco.MjModel, root: int) -> float:
+    """How far the bodies under `root` reach from it in the model's own pose, in metres."""
+    data = mujoco.MjData(model)
+    mujoco.mj_kinematics(model, data)
+    under = [b for b in range(root, model.nbody) if _descends(model, b, root)]
+    return float(np.linalg.norm(data.xpos[under] - data.xpos[root], axis=1).max())
+
+
+def _descends(model: mujoco.MjModel, body: int, root: int) -> bool:
+    while body > root:
+        body = int(model.body_parentid[body])
+    return body == root
 
 
 def unavailable() -> None:
