@@ -12,7 +12,19 @@ from typing import Annotated, Any
 import typer
 
 from labcli import __version__
-from labcli.commands import bench, config, export, info, listing, play, plot, runs, sweep, train
+from labcli.commands import (
+    bench,
+    config,
+    export,
+    info,
+    listing,
+    play,
+    plot,
+    runs,
+    sim2sim,
+    sweep,
+    train,
+)
 from labcli.commands.common import err
 from labcli.errors import Interrupted, LabError, one_line
 from labcli.runs import interrupt
@@ -58,7 +70,8 @@ def one_line_errors(fn: Callable, *, saves: bool = False) -> Callable:
 
 
 for name, command in (("list", listing.list_), ("train", train.train), ("play", play.play),
-                      ("export", export.export), ("bench", bench.bench), ("runs", runs.runs),
+                      ("export", export.export), ("sim2sim", sim2sim.sim2sim),
+                      ("bench", bench.bench), ("runs", runs.runs),
                       ("plot", plot.plot), ("info", info.info), ("sweep", sweep.sweep)):
     # Training commands stop at a checkpoint on a signal, rather than at once.
     app.command(name)(one_line_errors(command, saves=command in (train.train, sweep.sweep)))

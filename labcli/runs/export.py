@@ -18,6 +18,7 @@ from datetime import datetime
 from pathlib import Path
 from typing import Any
 
+import mujoco
 import numpy as np
 import torch
 
@@ -147,6 +148,11 @@ def export(fmt: Format | str, *, run_dir: Path | None = None, checkpoint: Path |
         out_dir = files.real_dir(run_dir / rundir.EXPORTED, below=run_dir)
         path = out_dir / ("policy.onnx" if fmt is Format.onnx else "policy.pt")
         metadata = describe(loaded, fmt, path)
+        # A robot's model as its task steps it (actuators, gains, timestep): what a check in
+        # plain MuJoCo (`lab sim2sim`, labcli.sim2sim) or a deployer's simulator loads.
+        physics = out_dir / "policy.mjb" if "deployment" in metadata else None
+        if physics is not None:
+            metadata["mujoco_model"] = physics.name
         # Written and checked under a temporary name: the previous export survives a failed
         # check, a kill or a full disk, and a link at `path` is replaced, not followed.
         with _exporting(out_dir):
@@ -161,6 +167,9 @@ def export(fmt: Format | str, *, run_dir: Path | None = None, checkpoint: Path |
                     raise LabError(f"exported {path.name} differs from the torch policy by "
                                    f"{diff:.2e} (tolerance {TOLERANCE:.0e}); nothing was "
                                    "written", "please report this as a bug")
+            if physics is not None:
+                with files.staged(physics, below=run_dir) as tmp:
+                    mujoco.mj_saveModel(loaded.env.task.model, str(tmp), None)
             metadata["check"] = {"max_abs_diff": diff, "tolerance": TOLERANCE,
                                  "observations": len(obs)}
             beside = out_dir / f"{path.name}.json"

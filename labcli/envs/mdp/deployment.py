@@ -72,7 +72,8 @@ def _observations(task: RobotTask) -> list[dict[str, Any]]:
         cfg = built.cfg
         function = type(cfg).impl.rsplit(":", 1)[1]
         rows.append({
-            "term": built.name, "columns": [start, start + width],
+            # What it measures (lab's term function: Isaac Lab's names), whatever its name.
+            "term": built.name, "kind": function, "columns": [start, start + width],
             "names": names[start:start + width],
             "source": ("command" if function in COMMAND_TERMS else
                        "last action" if function in ACTION_TERMS else "robot"),

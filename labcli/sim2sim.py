@@ -1,0 +1,140 @@
+"""An exported robot policy driving plain MuJoCo: `mujoco.mj_step`, NumPy and onnxruntime, no
+torch and no lab env code. Its observations are built from the export's metadata alone (each
+term's kind, joints, clip and scale), its actions applied by the metadata's actuators, scales
+and offsets, at the metadata's control rate. `lab sim2sim` runs it beside `lab play`; a
+deployer reads it as the loop a robot runs.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import mujoco
+import numpy as np
+
+GRAVITY = np.array([0.0, 0.0, -1.0])
+
+
+@dataclass
+class Trajectory:
+    """One episode of the loop: after each control step, the root's linear velocity (xy) and
+    yaw rate in its own frame, and the step at which a fall ended it (None: it did not)."""
+
+    lin_vel_b: np.ndarray  # [steps, 2]
+    yaw_rate: np.ndarray  # [steps]
+    fell_at: int | None
+
+
+class PlainLoop:
+    """The policy at `onnx_path` with its metadata (`<onnx>.json`) on the MuJoCo model the
+    export wrote beside it (`<onnx>.mjb`)."""
+
+    def __init__(self, onnx_path: Path):
+        import onnxruntime as ort
+
+        self.meta: dict[str, Any] = json.loads(Path(f"{onnx_path}.json").read_text())
+        self.model = mujoco.MjModel.from_binary_path(str(onnx_path.parent
+                                                         / self.meta["mujoco_model"]))
+        self.data = mujoco.MjData(self.model)
+        self.session = ort.InferenceSession(str(onnx_path), providers=["CPUExecutionProvider"])
+        deployment = self.meta["deployment"]
+        joints = deployment["joints"]
+        self.actuators = np.array([self.model.actuator(j["actuator"]).id for j in joints])
+        self.scale = np.array([j["action_scale"] for j in joints])
+        self.offset = np.array([j["action_offset"] for j in joints])
+        self.default = {j["joint"]: j["default_position"] for j in joints}
+        self.low, self.high = self.meta["output"]["range"]
+        self.decimation = int(self.meta["timing"]["decimation"])
+        free = [j for j in range(self.model.njnt)
+                if self.model.jnt_type[j] == mujoco.mjtJoint.mjJNT_FREE]
+        self.root_q = int(self.model.jnt_qposadr[free[0]])
+        self.root_v = int(self.model.jnt_dofadr[free[0]])
+        self.terms = [self._reader(term) for term in deployment["observations"]]
+        self.last_action = np.zeros(len(joints))
+
+    def _reader(self, term: dict[str, Any]):
+        """A function of the command that returns the term's value, clipped and scaled."""
+        kind = term["kind"]
+        joints = [name.split(".", 1)[1] for name in term["names"]]
+        if kind in ("joint_pos_rel", "joint_vel_rel"):
+            ids = [self.model.joint(j).id for j in joints]
+            if kind == "joint_pos_rel":
+                adr, source = self.model.jnt_qposadr[ids], self.data.qpos
+                default = np.array([self.default[j] for j in joints])
+            else:
+                adr, source, default = self.model.jnt_dofadr[ids], self.data.qvel, 0.0
+            raw = lambda command: source[adr] - default  # noqa: E731
+        else:
+            raw = {"base_lin_vel": lambda command: self._rotation().T @ self._root_vel()[:3],
+                   "base_ang_vel": lambda command: self._root_vel()[3:],
+                   "projected_gravity": lambda command: self._rotation().T @ GRAVITY,
+                   "generated_commands": lambda command: command,
+                   "last_action": lambda command: self.last_action}.get(kind)
+            if raw is None:
+                raise ValueError(f"observation term '{term['term']}' ({kind}) has no reading in "
+                                 "plain MuJoCo here")
+        low, high = term["clip"] or (-np.inf, np.inf)
+        return lambda command: np.clip(raw(command), low, high) * term["scale"]
+
+    def _rotation(self) -> np.ndarray:
+        matrix = np.zeros(9)
+        mujoco.mju_quat2Mat(matrix, self.data.qpos[self.root_q + 3:self.root_q + 7])
+        return matrix.reshape(3, 3)
+
+    def _root_vel(self) -> np.ndarray:
+        # A free joint's linear velocity is in the world frame, its angular one in its own.
+        return self.data.qvel[self.root_v:self.root_v + 6]
+
+    def observe(self, command: np.ndarray) -> np.ndarray:
+        return np.concatenate([read(command) for read in self.terms]).astype(np.float32)
+
+    def step(self, command: np.ndarray) -> None:
+        """One control step: observe, act, and hold the actuators' targets for `decimation`
+        physics steps."""
+        action = self.session.run(None, {"obs": self.observe(command)[None]})[0][0]
+        self.last_action = np.clip(action.astype(np.float64), self.low, self.high)
+        self.data.ctrl[self.actuators] = self.offset + self.scale * self.last_action
+        for _ in range(self.decimation):
+            mujoco.mj_step(self.model, self.data)
+
+    def reset(self, qpos: np.ndarray, qvel: np.ndarray) -> None:
+        """Put the robot in the state (`qpos`, `qvel`), its last action zero."""
+        mujoco.mj_resetData(self.model, self.data)
+        self.data.qpos[:], self.data.qvel[:] = qpos, qvel
+        mujoco.mj_forward(self.model, self.data)
+        self.last_action = np.zeros_like(self.last_action)
+
+    def run(self, qpos: np.ndarray, qvel: np.ndarray, commands: np.ndarray, fell) -> Trajectory:
+        """An episode from the state (`qpos`, `qvel`) under `commands[t]` at step t, until they
+        run out or `fell(model, data)` says the robot fell."""
+        self.reset(qpos, qvel)
+        lin, yaw = [], []
+        for t, command in enumerate(commands):
+            self.step(command)
+            velocity = self._root_vel()
+            lin.append((self._rotation().T @ velocity[:3])[:2])
+            yaw.append(velocity[5])
+            if fell(self.model, self.data):
+                return Trajectory(np.array(lin), np.array(yaw), t)
+        return Trajectory(np.array(lin), np.array(yaw), None)
+
+
+def tracking_errors(commands: np.ndarray, lin_vel_b: np.ndarray, yaw_rate: np.ndarray,
+                    step_dt: float, window_s: float = 0.0) -> tuple[float, float]:
+    """An episode's mean xy and yaw-rate tracking errors: each step's command (vx, vy, wz)
+    against the velocity after the step, averaged over `window_s` first where it is set (the
+    average starting from rest: the first error is the command)."""
+    lin = commands[:len(lin_vel_b), :2] - lin_vel_b
+    yaw = commands[:len(yaw_rate), 2] - yaw_rate
+    if window_s > 0.0:
+        weight = min(1.0, step_dt / window_s)
+        averaged = commands[0].copy()
+        smooth = np.empty((len(lin), 3))
+        for t in range(len(lin)):
+            averaged += weight * (np.append(lin[t], yaw[t]) - averaged)
+            smooth[t] = averaged
+        lin, yaw = smooth[:, :2], smooth[:, 2]
+    return float(np.linalg.norm(lin, axis=1).mean()), float(np.abs(yaw).mean())

@@ -1,0 +1,106 @@
+"""`lab sim2sim` (labcli/runs/closed_loop.py) and the plain-MuJoCo loop (labcli/sim2sim.py) on a
+real go1-flat export: lab's and the metadata's observations of the same state are equal, the
+loop's first step moves the joints as lab's does, and an export whose metadata lists the joints
+out of order fails the check."""
+
+from __future__ import annotations
+
+import io
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from rich.console import Console
+
+from labcli.errors import LabError
+from labcli.runs import closed_loop, export, training
+from labcli.sim2sim import tracking_errors
+
+
+@pytest.fixture(scope="module")
+def exported(tmp_path_factory):
+    logs = tmp_path_factory.mktemp("logs")
+    outcome = training.train("go1-flat", "rsl_rl", num_envs=4, max_iterations=1,
+                             logs_dir=logs, console=Console(file=io.StringIO()),
+                             command=["lab", "test"], overrides=["agent.num_steps_per_env=8"])
+    result = export.export("onnx", run_dir=outcome.run.dir)
+    return outcome.run.dir, result.metadata
+
+
+def _edit(metadata, change):
+    meta = json.loads(metadata.read_text())
+    change(meta["deployment"])
+    metadata.write_text(json.dumps(meta))
+
+
+def test_the_export_drives_plain_mujoco_as_lab_drives_its_env(exported):
+    run_dir, metadata = exported
+    meta = json.loads(metadata.read_text())
+    assert (run_dir / "exported" / meta["mujoco_model"]).is_file()
+    assert [t["kind"] for t in meta["deployment"]["observations"]] == [
+        "base_lin_vel", "base_ang_vel", "projected_gravity", "generated_commands",
+        "joint_pos_rel", "joint_vel_rel", "last_action"]
+    result = closed_loop.check(run_dir=run_dir, episodes=2)
+    assert result.obs_diff <= closed_loop.OBS_TOLERANCE
+    assert result.step_diff <= closed_loop.STEP_TOLERANCE
+    assert result.passed
+    # The same start states and commands: an untrained Go1 stands, far from its commands.
+    assert result.plain.lin_vel_error == pytest.approx(result.lab.lin_vel_error, abs=0.05)
+
+
+def test_joints_out_of_order_in_the_metadata_fail_the_check(exported, tmp_path):
+    run_dir, metadata = exported
+    saved = metadata.read_text()
+    try:
+        # The first two actions' joints named in the wrong order (their numbers in place): the
+        # loop sends the hip's target to the thigh and the thigh's to the hip.
+        def swap(d):
+            first, second = d["joints"][:2]
+            for key in ("joint", "actuator"):
+                first[key], second[key] = second[key], first[key]
+
+        _edit(metadata, swap)
+        result = closed_loop.check(run_dir=run_dir, episodes=2)
+        assert result.step_diff > closed_loop.STEP_TOLERANCE and not result.passed
+        assert result.step_worst in ("FL_hip_joint", "FL_thigh_joint")
+        # Joint positions read in the wrong order: the first observation already differs.
+        metadata.write_text(saved)
+        term = 4  # joint_pos
+        _edit(metadata, lambda d: d["observations"][term]["names"].reverse())
+        result = closed_loop.check(run_dir=run_dir, episodes=2)
+        assert result.obs_diff > closed_loop.OBS_TOLERANCE and not result.passed
+        assert result.obs_worst.startswith("joint_pos.")
+    finally:
+        metadata.write_text(saved)
+    done = subprocess.run([sys.executable, "-m", "labcli", "sim2sim", "--run", str(run_dir),
+                           "--episodes", "2"], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+
+
+def test_a_run_without_an_export_is_one_line(tmp_path):
+    outcome = training.train("go1-flat", "rsl_rl", num_envs=2, max_iterations=1,
+                             logs_dir=tmp_path, console=Console(file=io.StringIO()),
+                             command=["lab", "test"], overrides=["agent.num_steps_per_env=4"])
+    with pytest.raises(LabError, match="has no ONNX export") as info:
+        closed_loop.check(run_dir=outcome.run.dir)
+    assert "lab export onnx" in info.value.hint
+
+
+def test_the_plain_loop_imports_no_torch():
+    code = "import sys, labcli.sim2sim; print('torch' in sys.modules)"
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          check=True)
+    assert done.stdout.strip() == "False"
+
+
+def test_tracking_errors_by_hand():
+    commands = np.array([[1.0, 0.0, 0.5]] * 2)
+    lin = np.array([[0.5, 0.0], [1.0, 0.0]])
+    yaw = np.array([0.0, 0.5])
+    # Each step: |(1, 0) - v| = 0.5 then 0; |0.5 - w| = 0.5 then 0.
+    assert tracking_errors(commands, lin, yaw, 0.02) == pytest.approx((0.25, 0.25))
+    # Over a window of 0.04 s (weight 0.5), from rest (error = the command):
+    # lin 1 -> 0.75 -> 0.375, yaw 0.5 -> 0.5 -> 0.25.
+    assert tracking_errors(commands, lin, yaw, 0.02, 0.04) == pytest.approx((0.5625, 0.375))
