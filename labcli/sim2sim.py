@@ -88,6 +88,11 @@ class PlainLoop:
         # A free joint's linear velocity is in the world frame, its angular one in its own.
         return self.data.qvel[self.root_v:self.root_v + 6]
 
+    def root_velocity_b(self) -> tuple[np.ndarray, np.ndarray]:
+        """The root's linear and angular velocity in its own frame."""
+        velocity = self._root_vel()
+        return self._rotation().T @ velocity[:3], velocity[3:].copy()
+
     def observe(self, command: np.ndarray) -> np.ndarray:
         return np.concatenate([read(command) for read in self.terms]).astype(np.float32)
 
@@ -114,9 +119,9 @@ class PlainLoop:
         lin, yaw = [], []
         for t, command in enumerate(commands):
             self.step(command)
-            velocity = self._root_vel()
-            lin.append((self._rotation().T @ velocity[:3])[:2])
-            yaw.append(velocity[5])
+            linear, angular = self.root_velocity_b()
+            lin.append(linear[:2])
+            yaw.append(angular[2])
             if fell(self.model, self.data):
                 return Trajectory(np.array(lin), np.array(yaw), t)
         return Trajectory(np.array(lin), np.array(yaw), None)

@@ -104,3 +104,19 @@ def test_tracking_errors_by_hand():
     # Over a window of 0.04 s (weight 0.5), from rest (error = the command):
     # lin 1 -> 0.75 -> 0.375, yaw 0.5 -> 0.5 -> 0.25.
     assert tracking_errors(commands, lin, yaw, 0.02, 0.04) == pytest.approx((0.5625, 0.375))
+
+
+def test_the_deployment_example_runs_the_export(exported):
+    import re
+    from pathlib import Path
+
+    _, metadata = exported
+    example = Path(__file__).parents[1] / "examples" / "deploy_mujoco.py"
+    done = subprocess.run([sys.executable, str(example), str(metadata.with_suffix("")),
+                           "--vx", "0.5", "--seconds", "2"], capture_output=True, text=True,
+                          timeout=120)
+    assert done.returncode == 0, done.stderr
+    lines = done.stdout.splitlines()
+    assert len(lines) == 2 and all(re.match(
+        r"t=\s+\d s  command \(0.50, 0.00, 0.00\)  kept vx=-?[\d.]+ .* base at z=[\d.]+ m$", line)
+        for line in lines), done.stdout
