@@ -16,6 +16,7 @@ import mujoco
 import numpy as np
 
 GRAVITY = np.array([0.0, 0.0, -1.0])
+RAY_START = 5.0  # m above the root, where the height scan's rays start
 
 
 @dataclass
@@ -67,6 +68,11 @@ class PlainLoop:
             else:
                 adr, source, default = self.model.jnt_dofadr[ids], self.data.qvel, 0.0
             raw = lambda command: source[adr] - default  # noqa: E731
+        elif kind == "height_scan":
+            points = np.array([[float(v) for v in name.split(".", 1)[1].split(",")]
+                               for name in term["names"]])
+            offset = term["settings"]["offset"]
+            raw = lambda command: self._scan(points) - offset  # noqa: E731
         else:
             raw = {"base_lin_vel": lambda command: self._rotation().T @ self._root_vel()[:3],
                    "base_ang_vel": lambda command: self._root_vel()[3:],
@@ -78,6 +84,26 @@ class PlainLoop:
                                  "plain MuJoCo here")
         low, high = term["clip"] or (-np.inf, np.inf)
         return lambda command: np.clip(raw(command), low, high) * term["scale"]
+
+    def _scan(self, points: np.ndarray) -> np.ndarray:
+        """The root's height above the ground under each point (x, y in the root's frame,
+        turned by its yaw alone): MuJoCo's ray from above, past the robot's own geoms."""
+        rotation = self._rotation()
+        yaw = np.arctan2(rotation[1, 0], rotation[0, 0])
+        cos, sin = np.cos(yaw), np.sin(yaw)
+        root = self.data.qpos[self.root_q:self.root_q + 3]
+        down, geom = np.array([0.0, 0.0, -1.0]), np.zeros(1, np.int32)
+        heights = np.empty(len(points))
+        for i, (px, py) in enumerate(points):
+            start = np.array([root[0] + cos * px - sin * py, root[1] + sin * px + cos * py,
+                              root[2] + RAY_START])
+            while True:  # the world body's geoms are the ground; a robot's geom is passed
+                hit = mujoco.mj_ray(self.model, self.data, start, down, None, 1, -1, geom)
+                if hit < 0 or self.model.geom_bodyid[geom[0]] == 0:
+                    break
+                start = start + down * (hit + 1e-6)
+            heights[i] = root[2] - (start[2] - hit if hit >= 0 else -np.inf)
+        return heights
 
     def _rotation(self) -> np.ndarray:
         matrix = np.zeros(9)

@@ -24,7 +24,9 @@ def exported(tmp_path_factory):
     logs = tmp_path_factory.mktemp("logs")
     outcome = training.train("go1-flat", "rsl_rl", num_envs=4, max_iterations=1,
                              logs_dir=logs, console=Console(file=io.StringIO()),
-                             command=["lab", "test"], overrides=["agent.num_steps_per_env=8"])
+                             command=["lab", "test"],
+                             # 2 s episodes: 100 steps on each side of a check
+                             overrides=["agent.num_steps_per_env=8", "env.episode_length_s=2"])
     result = export.export("onnx", run_dir=outcome.run.dir)
     return outcome.run.dir, result.metadata
 
@@ -43,7 +45,7 @@ def test_the_export_drives_plain_mujoco_as_lab_drives_its_env(exported):
         "base_lin_vel", "base_ang_vel", "projected_gravity", "generated_commands",
         "joint_pos_rel", "joint_vel_rel", "last_action"]
     result = closed_loop.check(run_dir=run_dir, episodes=2)
-    assert result.obs_diff <= closed_loop.OBS_TOLERANCE
+    assert result.obs_diff <= 1.0  # of the tolerance
     assert result.step_diff <= closed_loop.STEP_TOLERANCE
     assert result.passed
     # The same start states and commands: an untrained Go1 stands, far from its commands.
@@ -70,7 +72,7 @@ def test_joints_out_of_order_in_the_metadata_fail_the_check(exported, tmp_path):
         term = 4  # joint_pos
         _edit(metadata, lambda d: d["observations"][term]["names"].reverse())
         result = closed_loop.check(run_dir=run_dir, episodes=2)
-        assert result.obs_diff > closed_loop.OBS_TOLERANCE and not result.passed
+        assert result.obs_diff > 1.0 and not result.passed
         assert result.obs_worst.startswith("joint_pos.")
     finally:
         metadata.write_text(saved)
@@ -120,3 +122,29 @@ def test_the_deployment_example_runs_the_export(exported):
     assert len(lines) == 2 and all(re.match(
         r"t=\s+\d s  command \(0.50, 0.00, 0.00\)  kept vx=-?[\d.]+ .* base at z=[\d.]+ m$", line)
         for line in lines), done.stdout
+
+
+def test_a_height_scan_is_cast_by_mujocos_rays_as_lab_reads_its_map(tmp_path):
+    # go1-rough on a small grid of its stairs and rough ground (its other types left out).
+    terrain = {"size": 4.0, "rows": 3, "cols": 2, "border": 1.0, "max_start_level": 2,
+               "types": {"stairs": {"platform": 1.0, "step_height": [0.1, 0.2]},
+                         "rough": {"platform": 1.0}, "stairs_down": None, "boxes": None,
+                         "slope": None, "slope_down": None}}
+    outcome = training.train(
+        "go1-rough", "rsl_rl", num_envs=4, max_iterations=1, logs_dir=tmp_path,
+        console=Console(file=io.StringIO()), command=["lab", "test"],
+        overrides=["env.terrain=" + json.dumps(terrain), "env.episode_length_s=1.0",
+                   "agent.num_steps_per_env=8"])
+    metadata = export.export("onnx", run_dir=outcome.run.dir).metadata
+    result = closed_loop.check(run_dir=outcome.run.dir, episodes=4)
+    # Every input within its tolerance: the 187 heights' median within 1 cm of lab's map, the
+    # rest within float32's rounding.
+    assert result.obs_diff <= 1.0, result
+    assert result.passed, result
+    # A deployer who left out the scan's offset reads every height 0.5 m off.
+    scan = next(i for i, t in enumerate(json.loads(metadata.read_text())["deployment"][
+        "observations"]) if t["kind"] == "height_scan")
+    _edit(metadata, lambda d: d["observations"][scan]["settings"].update(offset=0.0))
+    result = closed_loop.check(run_dir=outcome.run.dir, episodes=4)
+    assert result.obs_worst == "height_scan (median)" and result.obs_diff > 40, result
+    assert not result.passed

@@ -34,12 +34,14 @@ def sim2sim(
     for name, side in (("lab play", result.lab), ("plain MuJoCo", result.plain)):
         say(f"{name:>12}: success {side.success:.2f}, falls {side.falls}, mean tracking errors "
             f"{side.lin_vel_error:.3f} m/s (xy) and {side.yaw_rate_error:.3f} rad/s (yaw rate)")
-    say(f"first observation: lab's and the metadata's differ by at most {result.obs_diff:.1e} "
-        f"({result.obs_worst}); joint positions after the first step by {result.step_diff:.1e} "
-        f"rad ({result.step_worst})")
+    say(f"first observation: lab's and the metadata's differ by at most {result.obs_diff:.2f} "
+        f"of the tolerance ({result.obs_worst}); joint positions after the first step by "
+        f"{result.step_diff:.1e} rad ({result.step_worst})")
     verdict = "agree" if result.passed else "DISAGREE"
     say(f"{result.export}: {result.episodes} episodes each; {verdict} (observations within "
-        f"{closed_loop.OBS_TOLERANCE:.0e}, first steps within {closed_loop.STEP_TOLERANCE} rad, "
+        f"{closed_loop.OBS_TOLERANCE:.0e}, height scans' medians within "
+        f"{closed_loop.SCAN_TOLERANCE} m, "
+        f"first steps within {closed_loop.STEP_TOLERANCE} rad, "
         f"success rates within {result.tolerance:.2f})")
     if not result.passed:
         raise typer.Exit(1)

@@ -27,7 +27,10 @@ from labcli.sim2sim import PlainLoop, tracking_errors
 
 TOLERANCE = 0.1  # of the success rate: 2 of 16 episodes, 6 of 64
 # Of the first observation, lab's and the metadata's of the same state: float32's rounding.
+# A height scan is read by lab from a 5 cm map of the terrain and here by MuJoCo's rays, which
+# differ by a whole step within 5 cm of an edge: its median difference is held to 1 cm.
 OBS_TOLERANCE = 1e-4
+SCAN_TOLERANCE = 0.01
 # Of the joints' positions after the first control step (rad): lab's per-env randomization of
 # masses and friction moved a Go1's by up to 0.005; an action sent to the wrong joint, by 0.3.
 STEP_TOLERANCE = 0.05
@@ -49,7 +52,7 @@ class CheckResult:
     plain: Side
     tolerance: float
     # The largest difference between lab's first observation and the one built from the
-    # metadata in the same state, and the input it is in.
+    # metadata in the same state, over its tolerance (passed at most 1), and its input.
     obs_diff: float
     obs_worst: str
     # The same of the joints' positions after the first control step.
@@ -58,7 +61,7 @@ class CheckResult:
 
     @property
     def passed(self) -> bool:
-        return (self.obs_diff <= OBS_TOLERANCE and self.step_diff <= STEP_TOLERANCE
+        return (self.obs_diff <= 1.0 and self.step_diff <= STEP_TOLERANCE
                 and abs(self.lab.success - self.plain.success) <= self.tolerance)
 
 
@@ -112,8 +115,7 @@ def check(*, run_dir: Path | None = None, task: str | None = None,
     steps = commands.shape[1]
     built = np.stack([loop.reset(*start[i]) or loop.observe(commands[i, 0])
                       for i in range(episodes)])
-    diff = np.abs(built - first).max(axis=0)
-    worst = int(diff.argmax())
+    obs_diff, obs_worst = _worst_input(meta, np.abs(built - first))
     joints = [j["joint"] for j in meta["deployment"]["joints"]]
     adr = loop.model.jnt_qposadr[[loop.model.joint(j).id for j in joints]]
     moved = []
@@ -134,8 +136,24 @@ def check(*, run_dir: Path | None = None, task: str | None = None,
         ok, lin_error, yaw_error = rule.judge(commands[i], traj.lin_vel_b, traj.yaw_rate, done)
         plain_rows.append((ok, traj.fell_at is not None, lin_error, yaw_error))
     return CheckResult(export, episodes, _side(lab_rows), _side(plain_rows), tolerance,
-                       float(diff[worst]), meta["input"]["observations"][worst]["name"],
+                       obs_diff, obs_worst,
                        float(step_diff[step_worst]), joints[step_worst])
+
+
+def _worst_input(meta: dict, diff: np.ndarray) -> tuple[float, str]:
+    """The largest of the inputs' differences `[episodes, inputs]` over their tolerances (a
+    height scan's median over its points and episodes), and which input it is."""
+    names = [o["name"] for o in meta["input"]["observations"]]
+    worst = (0.0, names[0])
+    for term in meta["deployment"]["observations"]:
+        a, b = term["columns"]
+        if term["kind"] == "height_scan":
+            found = (float(np.median(diff[:, a:b])) / SCAN_TOLERANCE, f"{term['term']} (median)")
+        else:
+            column = a + int(diff[:, a:b].max(axis=0).argmax())
+            found = (float(diff[:, column].max()) / OBS_TOLERANCE, names[column])
+        worst = max(worst, found)
+    return worst
 
 
 def _side(rows: list[tuple[bool, bool, float, float]]) -> Side:
