@@ -108,12 +108,12 @@ def check(*, run_dir: Path | None = None, task: str | None = None,
         task = loaded.env.task
         rule = _rule(task)
         fell = _fall(task, loop.model)
-        first, start, stepped, commands, lab_lengths, lab_success, lin, yaw = _record(
+        first, start, stepped, commands, lab_lengths, lab_success, lab_fell, lin, yaw = _record(
             loaded, meta, seed)
     finally:
         loaded.env.close()
     steps = commands.shape[1]
-    built = np.stack([loop.reset(*start[i]) or loop.observe(commands[i, 0])
+    built = np.stack([_first_observation(loop, start[i], commands[i, 0])
                       for i in range(episodes)])
     obs_diff, obs_worst = _worst_input(meta, np.abs(built - first))
     joints = [j["joint"] for j in meta["deployment"]["joints"]]
@@ -128,7 +128,7 @@ def check(*, run_dir: Path | None = None, task: str | None = None,
     lab_rows, plain_rows = [], []
     for i in range(episodes):
         n = lab_lengths[i]
-        lab_rows.append((lab_success[i], n < steps,
+        lab_rows.append((lab_success[i], lab_fell[i],
                          *rule.judge(commands[i], lin[i, :n], yaw[i, :n], n == steps)[1:]))
         # Lab's commands end with its episode: an episode lab ended early ends there here too.
         traj = loop.run(*start[i], commands[i, :n], fell)
@@ -138,6 +138,12 @@ def check(*, run_dir: Path | None = None, task: str | None = None,
     return CheckResult(export, episodes, _side(lab_rows), _side(plain_rows), tolerance,
                        obs_diff, obs_worst,
                        float(step_diff[step_worst]), joints[step_worst])
+
+
+def _first_observation(loop: PlainLoop, state: tuple[np.ndarray, np.ndarray],
+                       command: np.ndarray) -> np.ndarray:
+    loop.reset(*state)
+    return loop.observe(command)
 
 
 def _worst_input(meta: dict, diff: np.ndarray) -> tuple[float, str]:
@@ -213,10 +219,15 @@ def _tilt(data: mujoco.MjData) -> float:
 
 def _record(loaded, meta: dict, seed: int):
     """lab's env under its policy until every env ended its first episode: each env's start
-    state, the command in each step's observation, the episode's length and success, and the
-    root's velocity after each step."""
+    state and its joints after the first step, the command in each step's observation, the
+    episode's length, success and whether a termination ended it, and the root's velocity
+    after each step."""
     env, policy = loaded.env, loaded.policy
     terms = {t["kind"]: t for t in meta["deployment"]["observations"]}
+    missing = {"generated_commands", "base_lin_vel", "base_ang_vel"} - set(terms)
+    if missing:
+        raise LabError(f"the policy observes no {', '.join(sorted(missing))}", "sim2sim reads "
+                       "the commands and the root's velocities from lab's observations")
     steps = int(round(env.task.cfg.episode_length_s / env.task.step_dt))
     obs, _ = env.reset(seed=seed)
     first = obs.cpu().double().numpy().copy()
@@ -225,7 +236,7 @@ def _record(loaded, meta: dict, seed: int):
                      strict=True))
     n = env.num_envs
     commands, lin, yaw = np.zeros((n, steps, 3)), np.zeros((n, steps, 2)), np.zeros((n, steps))
-    lengths, success = np.full(n, steps), np.zeros(n, dtype=bool)
+    lengths, success, fell = np.full(n, steps), np.zeros(n, dtype=bool), np.zeros(n, dtype=bool)
     ended = np.zeros(n, dtype=bool)
     for t in range(steps):
         commands[:, t] = _column(obs, terms["generated_commands"])
@@ -242,10 +253,11 @@ def _record(loaded, meta: dict, seed: int):
         new = done & ~ended
         lengths[new] = t + 1
         success[new] = info[EPISODE]["success"].cpu().numpy()[new]
+        fell[new] = terminated.cpu().numpy()[new]
         ended |= done
         if ended.all():
             break
-    return first, start, stepped, commands, lengths, success, lin, yaw
+    return first, start, stepped, commands, lengths, success, fell, lin, yaw
 
 
 def _column(obs: torch.Tensor, term: dict) -> np.ndarray:
