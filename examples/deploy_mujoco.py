@@ -65,7 +65,7 @@ def main() -> None:
         vx, vy = np.mean(linear, axis=0)
         print(f"t={second:3d} s  command ({a.vx:.2f}, {a.vy:.2f}, {a.wz:.2f})  "
               f"kept vx={vx:.2f} vy={vy:.2f} m/s, wz={np.mean(yaw_rate):.2f} rad/s, "
-              f"base at z={loop.data.qpos[loop.root_q + 2]:.2f} m", flush=True)
+              f"base at z={loop.root_height():.2f} m", flush=True)
 
 
 if __name__ == "__main__":

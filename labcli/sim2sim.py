@@ -74,9 +74,9 @@ class PlainLoop:
             offset = term["settings"]["offset"]
             raw = lambda command: self._scan(points) - offset  # noqa: E731
         else:
-            raw = {"base_lin_vel": lambda command: self._rotation().T @ self._root_vel()[:3],
+            raw = {"base_lin_vel": lambda command: self.root_rotation().T @ self._root_vel()[:3],
                    "base_ang_vel": lambda command: self._root_vel()[3:],
-                   "projected_gravity": lambda command: self._rotation().T @ GRAVITY,
+                   "projected_gravity": lambda command: self.root_rotation().T @ GRAVITY,
                    "generated_commands": lambda command: command,
                    "last_action": lambda command: self.last_action}.get(kind)
             if raw is None:
@@ -88,7 +88,7 @@ class PlainLoop:
     def _scan(self, points: np.ndarray) -> np.ndarray:
         """The root's height above the ground under each point (x, y in the root's frame,
         turned by its yaw alone): MuJoCo's ray from above, past the robot's own geoms."""
-        rotation = self._rotation()
+        rotation = self.root_rotation()
         yaw = np.arctan2(rotation[1, 0], rotation[0, 0])
         cos, sin = np.cos(yaw), np.sin(yaw)
         root = self.data.qpos[self.root_q:self.root_q + 3]
@@ -105,10 +105,14 @@ class PlainLoop:
             heights[i] = root[2] - (start[2] - hit if hit >= 0 else -np.inf)
         return heights
 
-    def _rotation(self) -> np.ndarray:
+    def root_rotation(self) -> np.ndarray:
+        """The root's orientation as a rotation matrix (its frame's axes in the world's)."""
         matrix = np.zeros(9)
         mujoco.mju_quat2Mat(matrix, self.data.qpos[self.root_q + 3:self.root_q + 7])
         return matrix.reshape(3, 3)
+
+    def root_height(self) -> float:
+        return float(self.data.qpos[self.root_q + 2])
 
     def _root_vel(self) -> np.ndarray:
         # A free joint's linear velocity is in the world frame, its angular one in its own.
@@ -117,7 +121,7 @@ class PlainLoop:
     def root_velocity_b(self) -> tuple[np.ndarray, np.ndarray]:
         """The root's linear and angular velocity in its own frame."""
         velocity = self._root_vel()
-        return self._rotation().T @ velocity[:3], velocity[3:].copy()
+        return self.root_rotation().T @ velocity[:3], velocity[3:].copy()
 
     def observe(self, command: np.ndarray) -> np.ndarray:
         return np.concatenate([read(command) for read in self.terms]).astype(np.float32)

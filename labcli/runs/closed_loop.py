@@ -107,7 +107,7 @@ def check(*, run_dir: Path | None = None, task: str | None = None,
     try:
         task = loaded.env.task
         rule = _rule(task)
-        fell = _fall(task, loop.model)
+        fell = _fall(task, loop)
         first, start, stepped, commands, lab_lengths, lab_success, lab_fell, lin, yaw = _record(
             loaded, meta, seed)
     finally:
@@ -177,9 +177,9 @@ def _rule(task) -> Rule:
                 getattr(command.cfg, "error_window", 0.0), task.step_dt)
 
 
-def _fall(task, model: mujoco.MjModel) -> Callable[[mujoco.MjModel, mujoco.MjData], bool]:
-    """The task's terminations (not its time-outs) as a test of a plain MuJoCo state."""
-    tests = []
+def _fall(task, loop: PlainLoop) -> Callable[[mujoco.MjModel, mujoco.MjData], bool]:
+    """The task's terminations (not its time-outs) as a test of the loop's MuJoCo state."""
+    model, tests = loop.model, []
     for name, term in task.cfg.terminations.terms():
         if term.time_out:
             continue
@@ -187,9 +187,9 @@ def _fall(task, model: mujoco.MjModel) -> Callable[[mujoco.MjModel, mujoco.MjDat
             bodies = set(names.resolve(model, "body", term.bodies))
             tests.append(lambda m, d, b=bodies, f=term.threshold: _touches(m, d, b, f))
         elif isinstance(term, c.BadOrientation):
-            tests.append(lambda m, d, a=term.limit_angle: _tilt(d) > a)
+            tests.append(lambda m, d, a=term.limit_angle: _tilt(loop) > a)
         elif isinstance(term, c.BaseHeightBelow):
-            tests.append(lambda m, d, h=term.minimum_height: d.qpos[2] < h)
+            tests.append(lambda m, d, h=term.minimum_height: loop.root_height() < h)
         else:
             raise LabError(f"termination '{name}' has no plain-MuJoCo test here",
                            "sim2sim knows illegal contacts, bad orientation and base height")
@@ -210,11 +210,9 @@ def _touches(model: mujoco.MjModel, data: mujoco.MjData, bodies: set[int],
     return any(value > threshold for value in total.values())
 
 
-def _tilt(data: mujoco.MjData) -> float:
+def _tilt(loop: PlainLoop) -> float:
     """The angle of the root's z axis from the world's up."""
-    matrix = np.zeros(9)
-    mujoco.mju_quat2Mat(matrix, data.qpos[3:7])
-    return math.acos(max(-1.0, min(1.0, matrix[8])))
+    return math.acos(max(-1.0, min(1.0, loop.root_rotation()[2, 2])))
 
 
 def _record(loaded, meta: dict, seed: int):
