@@ -320,3 +320,27 @@ def test_ctrl_c_with_a_stopped_shard_worker_ends_the_run_in_a_stated_time(tmp_pa
     (run_dir,) = {p.parent for p in logs.glob("rsl_rl/cartpole/*/model_1.pt")}
     summary = json.loads((run_dir / rundir.SUMMARY).read_text())
     assert summary["state"] == rundir.FAILED and "is stopped (SIGSTOP)" in summary["error"]
+
+
+def test_sigterm_to_the_whole_process_group_stops_a_sharded_run_in_order(tmp_path):
+    """`timeout` and Slurm's scancel signal every process of the job, the env's shard workers
+    too (as a terminal's Ctrl-C does): they leave the stop to `lab`, which checkpoints and
+    closes them."""
+    logs = tmp_path / "logs"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "labcli", "train", "--task", "cartpole", "--framework", "rsl_rl",
+         "--num-envs", "256", "--max-iterations", "100000", "--set", "agent.save_interval=1",
+         "--set", "agent.num_steps_per_env=8"], env={**os.environ, "LAB_LOGS_DIR": str(logs)},
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    try:
+        wait_for(lambda: list(logs.glob("rsl_rl/cartpole/*/model_2.pt")), timeout=120)
+        os.killpg(proc.pid, signal.SIGTERM)
+        _, err = proc.communicate(timeout=60)
+    finally:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(proc.pid, signal.SIGKILL)
+    assert proc.returncode == 143, err
+    (run_dir,) = {p.parent for p in logs.glob("rsl_rl/cartpole/*/model_2.pt")}
+    summary = json.loads((run_dir / rundir.SUMMARY).read_text())
+    assert summary["state"] == rundir.INTERRUPTED, summary
+    assert summary["checkpoint"] == f"model_{summary['iterations']}.pt"

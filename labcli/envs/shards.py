@@ -114,7 +114,10 @@ def _serve(spec: TaskSpec, cfg: TaskConfig, seed: int, mode: AutoresetMode, shar
     """A worker process: build its shard, then serve steps and commands until told to close,
     or until its parent is gone."""
     parent = mp.parent_process().pid
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the caller's: it stops in order
+    # A terminal's Ctrl-C, `timeout` and Slurm's scancel signal the whole process group: the
+    # caller stops in order and closes this worker (which also ends if the caller is gone).
+    for signum in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(signum, signal.SIG_IGN)
     torch.set_num_threads(1)
     try:
         env = LabVecEnv(spec, cfg, backend="cpu", seed=seed, autoreset_mode=mode,
