@@ -59,8 +59,10 @@ def assert_same(a: list[torch.Tensor], b: list[torch.Tensor]) -> None:
 @pytest.mark.parametrize("task, num_envs, mode, steps, cfg", [
     ("cartpole", 128, "same_step", 400, {}),  # episodes end and reset in every shard
     ("cartpole", 128, "next_step", 200, {}),
-    # Draws every step (observation noise, pushes) and on resets: time-outs every 15 steps.
-    ("go1-flat", 64, "same_step", 40, {"episode_length_s": 0.3}),
+    # Draws every step (observation noise, pushes) and on resets: time-outs every 15 steps;
+    # each physics step's own control (a motor's latency).
+    ("go1-flat", 64, "same_step", 40, {"episode_length_s": 0.3,
+                                       "actions": {"scale": 0.25, "delay": (1, 7)}}),
 ])
 def test_shards_give_the_outputs_of_one_env(task, num_envs, mode, steps, cfg):
     spec = registry.get_task(task)

@@ -364,10 +364,13 @@ def test_train_play_and_export_go1_from_the_command_line(tmp_path):
 @pytest.mark.gpu
 @pytest.mark.skipif(not (HAVE_WARP and torch.cuda.is_available()),
                     reason='needs a CUDA GPU and MuJoCo Warp (pip install -e ".[warp]")')
-def test_both_backends_agree_on_a_short_go1_rollout():
+@pytest.mark.parametrize("delay", [None, "[5,5]"], ids=["held", "delayed"])
+def test_both_backends_agree_on_a_short_go1_rollout(delay):
     """As test_robot_tasks' check for ant and humanoid: from the same state, lifted off the
-    floor, the same actions give the same observations and rewards on both backends."""
-    overrides = ["env.observation_noise=false", "env.events.push_robot=null"]
+    floor, the same actions give the same observations and rewards on both backends; also
+    with each physics step's own control (a motor's latency, inside the step's CUDA graph)."""
+    overrides = ["env.observation_noise=false", "env.events.push_robot=null",
+                 *([f"env.actions.delay={delay}"] if delay else [])]
     cpu = make_env("go1-flat", num_envs=8, backend="cpu", device="cpu", seed=0,
                    overrides=overrides)
     gpu = make_env("go1-flat", num_envs=8, backend="warp", device="cuda", seed=0,

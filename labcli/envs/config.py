@@ -21,6 +21,9 @@ class TaskConfig(BaseModel):
                                                      "compile"})
     # What `lab play` sets unless the user sets it (e.g. observation noise off).
     play_overrides: ClassVar[dict[str, Any]] = {}
+    # Dotted keys `lab play --set` may change besides those: conditions to test a policy under
+    # (a motor's latency).
+    play_settable: ClassVar[frozenset[str]] = frozenset()
 
     # The upper bounds are far beyond any use; past them a typo would exhaust memory or overflow
     # the step count instead of failing at once.

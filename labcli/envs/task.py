@@ -37,6 +37,11 @@ class Task:
     # replays the draws).
     rng: EnvRandom
 
+    # Each physics step's controls of the coming env step, `[decimation, num_envs, nu]`, that
+    # `apply_actions` writes where controls change inside a step (a motor's latency); None: the
+    # physics holds `sim.ctrl` through the step.
+    controls: torch.Tensor | None = None
+
     def __init__(self, cfg: TaskConfig, sim: Sim):
         self.cfg = cfg
         self.sim = sim

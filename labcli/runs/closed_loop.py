@@ -1,9 +1,9 @@
 """`lab sim2sim`: a run's ONNX export driving plain MuJoCo (`labcli.sim2sim`) beside lab's own
-env (`lab play`'s: its checkpoint, noise and pushes off), from the same start states under the
-same commands. Each side's episodes are judged by the task's own rule (the time-out reached, no
-termination, mean tracking errors under its success bounds); the check fails when the success
-rates differ by more than a tolerance: an export whose metadata misleads a deployer (a joint out
-of order, a wrong scale) walks in lab and falls in plain MuJoCo.
+env (`lab play`'s: its checkpoint, noise, pushes and motor latency off), from the same start
+states under the same commands. Each side's episodes are judged by the task's own rule (the
+time-out reached, no termination, mean tracking errors under its success bounds); the check
+fails when the success rates differ by more than a tolerance: an export whose metadata misleads
+a deployer (a joint out of order, a wrong scale) walks in lab and falls in plain MuJoCo.
 """
 
 from __future__ import annotations
@@ -103,7 +103,10 @@ def check(*, run_dir: Path | None = None, task: str | None = None,
     except ValueError as exc:
         raise LabError(f"{export}: {exc}", "sim2sim reads the robot terms of velocity "
                        "tasks") from None
-    loaded = play.load(checkpoint=run.dir / meta["checkpoint"], num_envs=episodes)
+    # The plain loop sends each control at once: lab's side too, whatever latency the policy
+    # was trained under (the export's `actuator_delay_s`).
+    loaded = play.load(checkpoint=run.dir / meta["checkpoint"], num_envs=episodes,
+                       overrides=["env.actions.delay=null"])
     try:
         task = loaded.env.task
         rule = _rule(task)

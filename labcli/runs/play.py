@@ -98,16 +98,21 @@ def load(*, run_dir: Path | None = None, checkpoint: Path | None = None,
 
 def _play_settings(spec: Any, overrides: Sequence[str],
                    saved: Mapping[str, Any]) -> dict[str, Any]:
-    """`--set` for a run: only what a task lets play change (its `play_overrides` keys), and a
-    setting with which the run's `saved` env settings name a file: the user's file instead."""
+    """`--set` for a run: only what a task lets play change (its `play_overrides` keys and
+    `play_settable` paths), and a setting with which the run's `saved` env settings name a
+    file: the user's file instead."""
     layers = config.parse_set(overrides)
     allowed = set(spec.config_class.play_overrides)
+    paths = [tuple(key.split(".")) for key in sorted(getattr(spec.config_class,
+                                                              "play_settable", ()))]
     files = [keys for keys, _ in config.named_files(saved)]
     wrong = [f"agent.{k}" for k in layers["agent"]] + [
         "env." + ".".join(map(str, keys)) for keys in _leaves(layers["env"])
-        if keys[0] not in allowed and not any(keys == named[:len(keys)] for named in files)]
+        if keys[0] not in allowed and not any(keys[:len(p)] == p for p in paths)
+        and not any(keys == named[:len(keys)] for named in files)]
     if wrong:
         settable = [f"env.{k}" for k in sorted(allowed)] + [
+            "env." + ".".join(path) for path in paths] + [
             "env." + ".".join(map(str, config.settable(keys))) for keys in files]
         raise LabError(f"--set {wrong[0]} cannot change a run that plays with its own params",
                        f"a run of task '{spec.name}' may set: "

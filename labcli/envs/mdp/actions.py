@@ -36,16 +36,61 @@ def per_actuator(task: RobotTask, scale: float | dict[str, float] | None) -> lis
     return values
 
 
+class ActuatorDelay:
+    """Each env's controls reaching its motors `lag` physics steps late, `lag` drawn per env at
+    every episode's start from `lags` (inclusive).
+
+    The controls the policy sent at the last few env steps are kept, newest first; physics step
+    k (0 <= k < decimation) of a step applies the newest of them sent at least `lag` physics
+    steps before it: the one sent ceil((lag - k) / decimation) env steps ago. An env's first
+    control of an episode stands for the ones before it. `controls` holds each physics step's
+    `[decimation, num_envs, nu]`, for the sim."""
+
+    carried = ("history", "lag", "fresh")
+
+    def __init__(self, task: RobotTask, lags: tuple[int, int]):
+        n, nu, steps = task.num_envs, task.model.nu, task.cfg.decimation
+        dev, dtype = task.action.device, task.sim.ctrl.dtype
+        self.task, self.low, self.count = task, lags[0], lags[1] - lags[0] + 1
+        # Envs first, as all state a task carries (an env shard's is its rows).
+        self.history = torch.zeros(n, -(-lags[1] // steps) + 1, nu, dtype=dtype, device=dev)
+        self.lag = torch.zeros(n, dtype=torch.long, device=dev)
+        self.fresh = torch.ones(n, dtype=torch.bool, device=dev)
+        self.controls = torch.zeros(steps, n, nu, dtype=dtype, device=dev)
+        self.substep = torch.arange(steps, device=dev)[:, None]
+        self.envs = torch.arange(n, device=dev)[None, :]
+        self.draw = torch.empty(n, device=dev)
+
+    def reset(self, mask: torch.Tensor) -> None:
+        self.task.rng.uniform_(self.draw)
+        lag = self.draw.mul(self.count).long().clamp_(max=self.count - 1).add_(self.low)
+        torch.where(mask, lag, self.lag, out=self.lag)
+        self.fresh.logical_or_(mask)
+
+    def __call__(self, ctrl: torch.Tensor) -> None:
+        """`ctrl`, the controls just sent, into the history and `controls`."""
+        self.history.copy_(self.history.roll(1, dims=1))
+        self.history[:, 0] = ctrl
+        torch.where(self.fresh[:, None, None], ctrl[:, None, :], self.history, out=self.history)
+        self.fresh.zero_()
+        back = (self.lag - self.substep).add_(self.controls.shape[0] - 1)
+        back = back.div_(self.controls.shape[0], rounding_mode="floor")
+        self.controls.copy_(self.history[self.envs, back])
+
+
 class JointEffortAction:
     def __init__(self, task: RobotTask, cfg: c.JointEffort):
         self.scale = task.tiled(per_actuator(task, cfg.scale))
         self.offset: torch.Tensor | None = None
         self.commands = [f"ctrl = {s:g} * action" for s in self.scale[0].tolist()]
+        self.delay = ActuatorDelay(task, cfg.delay) if cfg.delay is not None else None
 
     def __call__(self, actions: torch.Tensor, ctrl: torch.Tensor) -> None:
         torch.mul(actions, self.scale, out=ctrl)
         if self.offset is not None:
             ctrl.add_(self.offset)
+        if self.delay is not None:
+            self.delay(ctrl)
 
 
 class JointPositionAction(JointEffortAction):

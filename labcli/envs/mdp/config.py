@@ -636,9 +636,24 @@ class RandomizeCom(ModelEvent):
 class ActionTerm(Term):
     """How actions in [-1, 1] become controls: `scale` for every actuator, or per actuator by
     regular expressions on their names (the first that matches wins), or None: each joint's
-    from the task's robot description (env.robot)."""
+    from the task's robot description (env.robot).
+
+    `delay`: the motors' latency, (low, high) physics steps, drawn per env at every episode's
+    start (Isaac Lab's `DelayedPDActuator`, mjlab's delayed actuators): a control reaches the
+    motors that many physics steps after the policy sent it, the one before it held until then.
+    None: no latency."""
 
     scale: float | dict[str, float] | None = 1.0
+    delay: tuple[int, int] | None = None
+
+    @model_validator(mode="after")
+    def _delay_ordered(self) -> ActionTerm:
+        if self.delay is not None:
+            low, high = self.delay
+            if low < 0 or low > high:
+                raise ValueError(f"delay is ({low}, {high}) physics steps: give (low, high) "
+                                 "with 0 <= low <= high")
+        return self
 
 
 class JointEffort(ActionTerm):
@@ -688,6 +703,7 @@ class RobotTaskConfig(TaskConfig):
     `reward_weights`."""
 
     play_overrides: ClassVar[dict[str, Any]] = {"observation_noise": False}
+    play_settable: ClassVar[frozenset[str]] = frozenset({"actions.delay"})
 
     robot: RobotDescription | None = Field(None, description="the robot's motors, gains and "
                                            "parts, written into the model; None: the MJCF's own")

@@ -1,7 +1,7 @@
 """What a deployer wires around an exported robot policy besides the network, read from the task
 as built: each action's joint, actuator, default position, PD gains, limits, scale and offset;
 each observation term's columns, scale, clip and training noise; each command's fields and
-ranges. `lab export` writes it into the policy's metadata (and, for ONNX, also under the keys
+ranges; the motors' latency it was trained under. `lab export` writes it into the policy's metadata (and, for ONNX, also under the keys
 mjlab's exports use).
 """
 
@@ -23,7 +23,13 @@ ACTION_TERMS = {"last_action"}
 
 def describe(task: RobotTask) -> dict[str, Any]:
     return {"joints": _joints(task), "observations": _observations(task),
-            "commands": _commands(task)}
+            "commands": _commands(task), "actuator_delay_s": _delay(task)}
+
+
+def _delay(task: RobotTask) -> list[float] | None:
+    """The motors' latency the policy was trained under, (low, high) seconds; None: none."""
+    delay = task.cfg.actions.delay
+    return None if delay is None else [n * task.model.opt.timestep for n in delay]
 
 
 def _joints(task: RobotTask) -> list[dict[str, Any]]:

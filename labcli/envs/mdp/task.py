@@ -159,6 +159,11 @@ class RobotTask(Task):
                              if b.reset is not None and b not in self._events]
         self._term_resets += [s.reset for s in shared if hasattr(s, "reset")]
         self._carriers = [(b.name, b.made) for b in every if getattr(b.made, "carried", ())]
+        delay = getattr(self.actuation, "delay", None)
+        if delay is not None:
+            self.controls = delay.controls
+            self._term_resets.append(delay.reset)
+            self._carriers.append(("actions/delay", delay))
         self._carriers += [(f"shared{i}", s) for i, s in enumerate(shared)
                            if getattr(s, "carried", ())]
         if self.terrain is not None:

@@ -37,8 +37,10 @@ class Sim:
     sensordata: torch.Tensor
     nthread: int | None = None  # CPU threads that step the physics, where a backend has them
 
-    def step(self, nstep: int) -> None:
-        """Advance every env `nstep` physics steps holding `ctrl`."""
+    def step(self, nstep: int, controls: torch.Tensor | None = None) -> None:
+        """Advance every env `nstep` physics steps holding `ctrl`, or given `controls`
+        (`[nstep, num_envs, nu]`, a tensor the caller keeps and rewrites), each physics step's;
+        `ctrl` is then the last one's."""
         raise NotImplementedError
 
     def reset_to_defaults(self, mask: torch.Tensor) -> None:

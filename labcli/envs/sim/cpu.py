@@ -184,7 +184,7 @@ class CpuSim(Sim):
         self.ctrl = torch.from_numpy(self._ctrl)
         self.sensordata = torch.from_numpy(self._sensordata)
 
-    def step(self, nstep: int) -> None:
+    def step(self, nstep: int, controls: torch.Tensor | None = None) -> None:
         if self._chunks is not None and nstep != self._chunks.board.nstep:
             raise ValueError(f"an env shard's sim steps {self._chunks.board.nstep} physics "
                              f"steps at a time, not {nstep}")
@@ -193,8 +193,11 @@ class CpuSim(Sim):
             self._out = np.empty((n, nstep, self._state.shape[1]))
             self._ctrl_steps = np.empty((n, nstep, self.model.nu))
             self._sensors = np.empty((n, nstep, self.model.nsensordata))
-        # Zero-order hold: the same ctrl for every physics substep.
-        self._ctrl_steps[:] = self._ctrl[:, None, :]
+        if controls is None:  # zero-order hold: the same ctrl for every physics substep
+            self._ctrl_steps[:] = self._ctrl[:, None, :]
+        else:
+            self._ctrl_steps[:] = controls.numpy().transpose(1, 0, 2)
+            self._ctrl[:] = self._ctrl_steps[:, -1]
         split = self._split
         if self._chunks is not None:
             self._chunks.step()

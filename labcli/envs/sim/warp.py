@@ -147,8 +147,10 @@ class WarpSim(Sim):
             return super().model_field(name)
         return field
 
-    def step(self, nstep: int) -> None:
-        self._run(nstep, lambda: self._substeps(nstep))
+    def step(self, nstep: int, controls: torch.Tensor | None = None) -> None:
+        # A graph reads `controls` where it was when captured: one graph per tensor.
+        key = nstep if controls is None else (nstep, controls.data_ptr())
+        self._run(key, lambda: self._substeps(nstep, controls))
         if self._overflow is not None and self._overflow_names:
             flags = self._overflow
             hit = (flags[:, None] & self._overflow_bits).ne(0)
@@ -179,8 +181,10 @@ class WarpSim(Sim):
         self._graphs.clear()
 
     # internals -------------------------------------------------------------------------------
-    def _substeps(self, nstep: int) -> None:
-        for _ in range(nstep):
+    def _substeps(self, nstep: int, controls: torch.Tensor | None = None) -> None:
+        for k in range(nstep):
+            if controls is not None:
+                wp.copy(self._d.ctrl, wp.from_torch(controls[k]))
             mjw.step(self._m, self._d)
 
     def _reset_masked(self) -> None:
