@@ -14,6 +14,7 @@ from labcli.commands.common import (
     RunOpt,
     RunSetOpt,
     TaskOpt,
+    err,
     say,
 )
 
@@ -38,3 +39,5 @@ def export(
                             framework=framework, logs_dir=logs_dir, overrides=set_ or [])
     say(f"wrote {result.path} and {result.metadata.name}; max abs difference from torch "
         f"{result.max_abs_diff:.2e} over {result.checked} observations")
+    if result.note is not None:
+        err().print(result.note, highlight=False, soft_wrap=True)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import signal
 import sys
-from typing import Annotated
+from typing import Annotated, Literal
 
 import typer
 
@@ -44,6 +44,10 @@ def train(
     video_interval: Annotated[int, typer.Option(
         help="Env steps from one video's start to the next.")] = 2000,
     logs_dir: LogsDir = None,
+    logger: Annotated[Literal["tensorboard", "wandb"], typer.Option(
+        help="Where the figures go: TensorBoard (the run dir's event files), or Weights & "
+             "Biases as well (pip install 'lab[wandb]'; WANDB_PROJECT, WANDB_MODE=offline).")
+    ] = "tensorboard",
     nproc: Annotated[int | None, typer.Option(
         help="Data-parallel ranks on this host, each with --num-envs envs (rsl_rl, skrl): "
              "the batch grows with the ranks, and so does rsl_rl's KL target "
@@ -67,7 +71,7 @@ def train(
     options = dict(num_envs=num_envs, seed=seed, max_iterations=max_iterations, device=device,
                    backend=backend, run_name=run_name, overrides=set_ or [],
                    config_file=config_file, checkpoint=checkpoint, logs_dir=logs_dir,
-                   video=settings)
+                   video=settings, logger=logger)
     if (nproc, nnodes, rdzv_endpoint, rdzv_id) != (None, None, None, None):
         from labcli.runs.launcher import Launch
 

@@ -26,7 +26,7 @@ from labcli import __version__, files
 from labcli.envs import models
 from labcli.errors import LabError
 from labcli.plugins import registry
-from labcli.runs import rundir
+from labcli.runs import loggers, rundir
 from labcli.runs.play import LoadedPolicy, load
 
 TOLERANCE = 1e-5
@@ -45,6 +45,8 @@ class ExportResult:
     metadata: Path
     max_abs_diff: float
     checked: int
+    # Why the export was not logged to the run's Weights & Biases run, where it has one.
+    note: str | None = None
 
 
 def _check_observations(loaded: LoadedPolicy) -> torch.Tensor:
@@ -174,7 +176,8 @@ def export(fmt: Format | str, *, run_dir: Path | None = None, checkpoint: Path |
                                  "observations": len(obs)}
             beside = out_dir / f"{path.name}.json"
             rundir.write_json(run_dir, f"{rundir.EXPORTED}/{beside.name}", metadata)
-        return ExportResult(path, beside, diff, len(obs))
+        logged = loggers.log_export(run_dir, [p for p in (path, beside, physics) if p])
+        return ExportResult(path, beside, diff, len(obs), logged)
     finally:
         loaded.env.close()
 

@@ -14,7 +14,7 @@ from labcli.errors import LabError
 from labcli.plugins import registry
 from labcli.plugins.config import AgentConfig
 from labcli.plugins.framework import Checkpoint, FrameworkSpec
-from labcli.runs import checkpoints, config, recorded, rundir
+from labcli.runs import checkpoints, config, loggers, recorded, rundir
 from labcli.runs.video import VideoSettings
 
 
@@ -36,6 +36,7 @@ class TrainPlan:
     ranks: int = 1  # data-parallel processes, each with env_cfg.num_envs envs
     # Lines to say after the plan's (a resumed run's model changed since it was recorded).
     warnings: list[str] = field(default_factory=list)
+    logger: str = "tensorboard"  # where figures go besides TensorBoard (labcli.runs.loggers)
 
     @property
     def write_dir(self) -> Path:
@@ -81,12 +82,14 @@ def plan(task: str, framework: str, *, num_envs: int | None = None, seed: int | 
          backend: str | None = None, run_name: str | None = None,
          overrides: Sequence[str] = (), config_file: Path | None = None,
          checkpoint: str | None = None, logs_dir: Path | None = None,
-         video: VideoSettings | None = None, ranks: int = 1) -> TrainPlan:
+         video: VideoSettings | None = None, ranks: int = 1,
+         logger: str = "tensorboard") -> TrainPlan:
     """Resolve the task, the framework, the checkpoint to resume and the configs, or raise the
     LabError that says what is wrong. `ranks` > 1: one rank's share of a data-parallel run."""
     logs_dir = logs_dir or rundir.default_logs_dir()
     spec = registry.get_task(task)
     fw = registry.get_framework(framework)
+    loggers.check(logger)
     if ranks > 1 and not fw.data_parallel:
         reg = registry.loaded()
         able = [name for name in reg.names(registry.FRAMEWORK)
@@ -130,4 +133,4 @@ def plan(task: str, framework: str, *, num_envs: int | None = None, seed: int | 
             f"checkpoint {resume.path.name} is at iteration {resume.iteration}, and max_iterations"
             f" is {agent_cfg.max_iterations}", "pass a larger --max-iterations to train further")
     return TrainPlan(spec, fw, env_cfg, agent_cfg, logs_dir, device, backend, run_name, run,
-                     resume, video, changes, ranks, [warning] if warning else [])
+                     resume, video, changes, ranks, [warning] if warning else [], logger)

@@ -30,7 +30,16 @@ from labcli.errors import LabError
 from labcli.plugins import registry
 from labcli.plugins.config import AgentConfig
 from labcli.plugins.framework import Checkpoint, Framework, StopTraining
-from labcli.runs import checkpoints, config, distributed, interrupt, loading, rundir, snapshot
+from labcli.runs import (
+    checkpoints,
+    config,
+    distributed,
+    interrupt,
+    loading,
+    loggers,
+    rundir,
+    snapshot,
+)
 from labcli.runs import video as videos
 from labcli.runs.context import IterationHook, RunContext, StopAtRequest
 from labcli.runs.plan import TrainPlan
@@ -164,7 +173,16 @@ class _Session:
                             if key.startswith("agent."))
         return _run_training(fw, env, plan.agent_cfg, run_, plan.resume, resume_state,
                              self.stop, self.device, pipeline, self.console, earlier_wall,
-                             changed, self.on_iteration, self.ranks)
+                             changed, self.on_iteration, self.ranks, self._wandb_config())
+
+    def _wandb_config(self) -> dict[str, Any] | None:
+        """The settings a W&B run records (`--logger wandb`); None: no W&B."""
+        plan = self.plan
+        if plan.logger != "wandb":
+            return None
+        return {"task": plan.spec.name, "framework": plan.framework.name,
+                "env": plan.env_cfg.model_dump(mode="json"),
+                "agent": plan.agent_cfg.model_dump(mode="json")}
 
     def _write_session(self, fw: Framework, env: Any, run_: rundir.Run,
                        before: dict[str, Any]) -> None:
@@ -317,11 +335,13 @@ def _run_training(fw: Framework, env: Any, cfg: AgentConfig, run: rundir.Run,
                   resume: Checkpoint | None, resume_state: dict[str, Any] | None,
                   stop: interrupt.StopRequest, device: str, pipeline: list[wrappers.Step],
                   console: Console, earlier_wall: float, changed: frozenset[str],
-                  on_iteration: IterationHook | None, ranks: Ranks) -> TrainOutcome:
+                  on_iteration: IterationHook | None, ranks: Ranks,
+                  wandb_config: dict[str, Any] | None) -> TrainOutcome:
     envs = (f"{ranks.world_size} ranks × {env.num_envs} envs" if ranks.active
             else f"{env.num_envs} envs")
     description = f"{fw.name} · {env.task_spec.name} · {envs}"
-    writer = SummaryWriter(log_dir=str(run.dir)) if ranks.writer else _NoWriter()
+    writer = (loggers.Figures(SummaryWriter(log_dir=str(run.dir))) if ranks.writer
+              else _NoWriter())
     progress = TrainProgress(cfg.max_iterations, description, console,
                              start=resume.iteration if resume else 0)
     ctx = RunContext(cfg=cfg, env=env, framework=fw, run_dir=run.dir, seed=cfg.seed,
@@ -342,6 +362,8 @@ def _run_training(fw: Framework, env: Any, cfg: AgentConfig, run: rundir.Run,
     # update. Its stop is agreed on at the end of the iteration (RunContext.end_iteration).
     stop_mid_rollout = stop if not ranks.active else interrupt.StopRequest()
     try:
+        if wandb_config is not None and ranks.writer:
+            writer.join_wandb(run.dir, wandb_config)
         wrapped = wrappers.apply(StopAtRequest(env, stop_mid_rollout), pipeline, fw.name)
         # StopTraining out of a plugin that leaves ctx.training out: its saves stand.
         with progress, mjwarnings.counted(ctx.mujoco_warnings), \
@@ -384,7 +406,7 @@ class _NoWriter:
         return lambda *args, **kwargs: None
 
 
-def _close(writer: SummaryWriter | _NoWriter, console: Console) -> None:
+def _close(writer: loggers.Figures | _NoWriter, console: Console) -> None:
     try:
         writer.close()
     except OSError as exc:  # a full disk: TensorBoard could not write its last figures

@@ -31,11 +31,13 @@ def train(task: str, framework: str, *, num_envs: int | None = None, seed: int |
           checkpoint: str | None = None, logs_dir: Path | None = None,
           console: Console | None = None, command: Sequence[str] | None = None,
           video: VideoSettings | None = None,
-          on_iteration: IterationHook | None = None) -> TrainOutcome:
+          on_iteration: IterationHook | None = None,
+          logger: str = "tensorboard") -> TrainOutcome:
     """Train `task` with `framework`; everything is validated before anything is written. With
     `video`, env 0 is recorded into <run dir>/videos/train/. `on_iteration(iteration, steps,
     figures)` is told every iteration's logged figures; returning True stops the run as Ctrl-C
-    would (checkpointed, state 'interrupted')."""
+    would (checkpointed, state 'interrupted'). `logger`: "wandb" logs to Weights & Biases too
+    (`labcli.runs.loggers`)."""
     console = console or Console(stderr=True)
     ranks = from_environment()  # one of several, when torchrun started this process
     if not ranks.writer:
@@ -46,7 +48,7 @@ def train(task: str, framework: str, *, num_envs: int | None = None, seed: int |
                         max_iterations=max_iterations, device=device, backend=backend,
                         run_name=run_name, overrides=overrides, config_file=config_file,
                         checkpoint=checkpoint, logs_dir=logs_dir, video=video,
-                        ranks=ranks.world_size)
+                        ranks=ranks.world_size, logger=logger)
         for failure in registry.loaded().failures:  # what they provide is missing: say so
             console.print(f"warning: plugin '{failure.plugin}' ({failure.provider}) failed to "
                           f"load: {failure.error}", highlight=False, soft_wrap=True)
