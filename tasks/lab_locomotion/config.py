@@ -136,7 +136,7 @@ class Go1Terminations(c.Group):
     base_contact: c.IllegalContact | None = c.IllegalContact(bodies=["trunk"], threshold=1.0)
 
 
-class Go1Events(c.Group):
+class Go1Events(c.MotorEvents):
     # Start-up: Isaac Lab's Go1 base-mass range (its velocity config has the term off for a
     # PhysX issue that MuJoCo does not share) and its center-of-mass shift.
     add_base_mass: c.RandomizeMass | None = c.RandomizeMass(bodies=["trunk"],
@@ -242,7 +242,7 @@ class G1Terminations(c.Group):
     fell_over: c.BadOrientation | None = c.BadOrientation(limit_angle=math.radians(70.0))
 
 
-class G1Events(c.Group):
+class G1Events(c.MotorEvents):
     foot_friction: c.RandomizeFriction | None = c.RandomizeFriction(bodies=FEET,
                                                                     friction_range=(0.3, 1.2))
     base_com: c.RandomizeCom | None = c.RandomizeCom(

@@ -632,6 +632,51 @@ class RandomizeCom(ModelEvent):
         return self
 
 
+class JointModelEvent(EventTerm):
+    """A per-env change of each named joint's own value (hinge and slide joints; the free
+    joint is never one), drawn per joint from `range`: `scale` multiplies the model's value,
+    `add` adds to it, `abs` replaces it (Isaac Lab's operations), at start-up or every reset."""
+
+    mode: Literal["startup", "reset"] = "startup"
+    joints: list[str] = Field(default_factory=lambda: [".*"], min_length=1,
+                              description="joints whose value it changes (patterns)")
+    range: Range = (1.0, 1.0)
+    operation: Literal["scale", "add", "abs"] = "scale"
+
+
+class RandomizeJointFriction(JointModelEvent):
+    """MuJoCo's dry friction of each joint (`dof_frictionloss`, N m): Isaac Lab's
+    `randomize_joint_parameters` for friction."""
+
+    impl: ClassVar[str] = "labcli.envs.mdp.events:randomize_joint_friction"
+
+
+class RandomizeJointDamping(JointModelEvent):
+    """Each joint's passive viscous damping (`dof_damping`, N m s/rad)."""
+
+    impl: ClassVar[str] = "labcli.envs.mdp.events:randomize_joint_damping"
+
+
+class RandomizeJointArmature(JointModelEvent):
+    """Each joint's armature (`dof_armature`, the rotor's reflected inertia, kg m^2): Isaac
+    Lab's `randomize_joint_parameters` for armature."""
+
+    impl: ClassVar[str] = "labcli.envs.mdp.events:randomize_joint_armature"
+
+
+class RandomizeActuatorGains(EventTerm):
+    """Each named position servo's stiffness (kp) and damping (kd), scaled per env and
+    actuator by draws from `stiffness_range` and `damping_range`: Isaac Lab's
+    `randomize_actuator_gains` with operation "scale", for MuJoCo's position actuators."""
+
+    impl: ClassVar[str] = "labcli.envs.mdp.events:randomize_actuator_gains"
+    mode: Literal["startup", "reset"] = "startup"
+    actuators: list[str] = Field(default_factory=lambda: [".*"], min_length=1,
+                                 description="position actuators whose gains it scales")
+    stiffness_range: Range = (1.0, 1.0)
+    damping_range: Range = (1.0, 1.0)
+
+
 # actions ---------------------------------------------------------------------------------------
 class ActionTerm(Term):
     """How actions in [-1, 1] become controls: `scale` for every actuator, or per actuator by
@@ -695,6 +740,17 @@ class Group(BaseModel):
 
     def terms(self) -> list[tuple[str, Term]]:
         return [(name, term) for name, term in self if term is not None]
+
+
+class MotorEvents(Group):
+    """The randomization of a robot's joints and motors that sim-to-real recipes add, each off
+    until set (`--set env.events.actuator_gains.stiffness_range=[0.8,1.2]`): a task's events
+    group inherits it."""
+
+    joint_friction: RandomizeJointFriction | None = None
+    joint_damping: RandomizeJointDamping | None = None
+    joint_armature: RandomizeJointArmature | None = None
+    actuator_gains: RandomizeActuatorGains | None = None
 
 
 class RobotTaskConfig(TaskConfig):

@@ -6,10 +6,12 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, ClassVar
 
+import mujoco
 import torch
 
 from labcli.envs.mdp import config as c
 from labcli.envs.mdp import math, names
+from labcli.errors import LabError
 
 if TYPE_CHECKING:
     from labcli.envs.mdp.task import RobotTask
@@ -117,6 +119,7 @@ class _ModelEvent:
     per component)."""
 
     field: ClassVar[str]
+    fields: ClassVar[tuple[str, ...]]  # every field it writes (the sim makes them per env)
     carried = ("values",)
 
     def __init__(self, task: RobotTask, rows: list[int], ranges: list[tuple[float, float]],
@@ -133,7 +136,8 @@ class _ModelEvent:
             self.startup = lambda: self.apply(self.everyone)
 
     def restored(self) -> None:
-        self.sim.model_changed(self.field, self.everyone)
+        for field in self.fields:
+            self.sim.model_changed(field, self.everyone)
 
     def column(self) -> torch.Tensor:
         return self.values[:, self.rows]
@@ -142,7 +146,8 @@ class _ModelEvent:
         current = self.column()
         new = self.new_values(self.draw().to(self.values.dtype).view(current.shape))
         self.write(torch.where(mask.view(-1, *[1] * (current.dim() - 1)), new, current))
-        self.sim.model_changed(self.field, mask)
+        for field in self.fields:
+            self.sim.model_changed(field, mask)
 
     def new_values(self, drawn: torch.Tensor) -> torch.Tensor:
         return drawn
@@ -197,3 +202,76 @@ class randomize_rigid_body_com(_AddedToModel):  # noqa: N801
     def __init__(self, task: RobotTask, cfg: c.RandomizeCom):
         axes = [cfg.com_range.get(axis, (0.0, 0.0)) for axis in ("x", "y", "z")]
         super().__init__(task, _bodies(task, cfg.bodies), axes, cfg.mode)
+
+
+def _dofs(task: RobotTask, joints: list[str]) -> list[int]:
+    """The dofs of the named hinge and slide joints (a free joint's are the base's)."""
+    model = task.model
+    kinds = (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE))
+    dofs = [int(model.jnt_dofadr[j]) for j in names.resolve(model, "joint", joints)
+            if int(model.jnt_type[j]) in kinds]
+    if not dofs:
+        raise LabError(f"joints {joints} name no hinge or slide joint",
+                       "name the robot's actuated joints")
+    return dofs
+
+
+class _JointEvent(_ModelEvent):
+    def __init__(self, task: RobotTask, cfg: c.JointModelEvent):
+        self.operation = cfg.operation
+        super().__init__(task, _dofs(task, cfg.joints), [cfg.range], cfg.mode)
+
+    def new_values(self, drawn: torch.Tensor) -> torch.Tensor:
+        if self.operation == "scale":
+            return self.base * drawn
+        if self.operation == "add":
+            return self.base + drawn
+        return drawn
+
+
+class randomize_joint_friction(_JointEvent):  # noqa: N801
+    field = "dof_frictionloss"
+    fields = (field,)
+
+
+class randomize_joint_damping(_JointEvent):  # noqa: N801
+    field = "dof_damping"
+    fields = (field,)
+
+
+class randomize_joint_armature(_JointEvent):  # noqa: N801
+    field = "dof_armature"
+    fields = (field,)
+
+
+class randomize_actuator_gains(_ModelEvent):  # noqa: N801
+    """A position servo's force is kp (target - q) - kd qdot: MuJoCo's gain kp and biases -kp,
+    -kd. Its values are each actuator's (kp, kd)."""
+
+    field = "actuator_gainprm"
+    fields = ("actuator_gainprm", "actuator_biasprm")
+    carried = ("values", "bias")
+
+    def __init__(self, task: RobotTask, cfg: c.RandomizeActuatorGains):
+        model = task.model
+        servos = [a for a in names.resolve(model, "actuator", cfg.actuators)
+                  if model.actuator_gaintype[a] == int(mujoco.mjtGain.mjGAIN_FIXED)
+                  and model.actuator_biastype[a] == int(mujoco.mjtBias.mjBIAS_AFFINE)
+                  and model.actuator_gainprm[a, 0] > 0
+                  and model.actuator_biasprm[a, 1] == -model.actuator_gainprm[a, 0]]
+        if not servos:
+            raise LabError(f"actuators {cfg.actuators} name no position servo",
+                           "randomize_actuator_gains scales position actuators' kp and kd")
+        self.bias = task.sim.model_field("actuator_biasprm")
+        super().__init__(task, servos, [cfg.stiffness_range, cfg.damping_range], cfg.mode)
+
+    def column(self) -> torch.Tensor:
+        return torch.stack([self.values[:, self.rows, 0], -self.bias[:, self.rows, 2]], dim=-1)
+
+    def new_values(self, drawn: torch.Tensor) -> torch.Tensor:
+        return self.base * drawn
+
+    def write(self, values: torch.Tensor) -> None:
+        self.values[:, self.rows, 0] = values[..., 0]
+        self.bias[:, self.rows, 1] = -values[..., 0]
+        self.bias[:, self.rows, 2] = -values[..., 1]

@@ -1,0 +1,94 @@
+"""Randomized joints and motors (`env.events.joint_friction|joint_damping|joint_armature|
+actuator_gains`, off by default): each env's own values in the model it steps, drawn within
+the ranges by each operation, again at resets where asked, carried through a resume."""
+
+from __future__ import annotations
+
+import importlib.util
+
+import pytest
+import torch
+
+from labcli.errors import LabError
+from labcli.gym import make_env
+
+BASE = ["env.observation_noise=false", "env.events.push_robot=null"]
+GAINS = ["env.events.actuator_gains.stiffness_range=[0.5,1.5]",
+         "env.events.actuator_gains.damping_range=[0.8,1.2]"]
+JOINTS = ["env.events.joint_damping.range=[0.1,0.3]", "env.events.joint_damping.operation=abs",
+          "env.events.joint_friction.range=[0.0,0.5]", "env.events.joint_friction.operation=add",
+          "env.events.joint_armature.range=[0.8,1.2]", "env.events.joint_armature.mode=reset"]
+LEGS = slice(6, 18)  # go1's 12 leg dofs, after the free joint's 6
+
+
+def go1(n: int, *overrides: str, **kwargs):
+    env = make_env("go1-flat", num_envs=n, seed=0, overrides=[*BASE, *overrides], **kwargs)
+    env.reset()
+    return env
+
+
+def test_each_env_steps_with_its_own_gains_and_joints_drawn_by_each_operation():
+    env = go1(16, *GAINS, *JOINTS)
+    nominal, models = env.sim.model, env.sim.models
+    kp0, kd0 = nominal.actuator_gainprm[:, 0], -nominal.actuator_biasprm[:, 2]
+    armature0 = nominal.dof_armature[LEGS]
+    kps = []
+    for m in models:
+        kp, kd = m.actuator_gainprm[:, 0], -m.actuator_biasprm[:, 2]
+        assert (kp >= 0.5 * kp0).all() and (kp <= 1.5 * kp0).all()
+        assert (kd >= 0.8 * kd0 - 1e-12).all() and (kd <= 1.2 * kd0 + 1e-12).all()
+        assert (m.actuator_biasprm[:, 1] == -kp).all()  # still a servo: kp (target - q)
+        assert ((m.dof_damping[LEGS] >= 0.1) & (m.dof_damping[LEGS] <= 0.3)).all()  # abs
+        assert ((m.dof_frictionloss[LEGS] >= 0.0) & (m.dof_frictionloss[LEGS] <= 0.5)).all()
+        ratio = m.dof_armature[LEGS] / armature0  # scale
+        assert ((ratio >= 0.8 - 1e-12) & (ratio <= 1.2 + 1e-12)).all()
+        assert (m.dof_damping[:6] == nominal.dof_damping[:6]).all()  # the base's: untouched
+        kps.append(kp.copy())
+    assert len({tuple(kp) for kp in kps}) == 16
+    assert (nominal.actuator_gainprm[:, 0] == 35.0).all()  # the shared model stays nominal
+
+    # At a reset, only the reset-mode terms draw again, and only for the envs reset.
+    armature = torch.stack([torch.from_numpy(m.dof_armature.copy()) for m in models])
+    mask = torch.zeros(16, dtype=torch.bool)
+    mask[:8] = True
+    env.task.reset(mask, env.task.rng)
+    after = torch.stack([torch.from_numpy(m.dof_armature.copy()) for m in models])
+    assert torch.equal(after[8:], armature[8:]) and not torch.equal(after[:8], armature[:8])
+    assert all((m.actuator_gainprm[:, 0] == kp).all() for m, kp in zip(models, kps, strict=True))
+    env.close()
+
+
+def test_a_resumed_env_steps_with_the_gains_it_had():
+    env = go1(4, *GAINS)
+    for _ in range(3):
+        env.step(torch.zeros(4, 12))
+    twin = make_env("go1-flat", num_envs=4, seed=9, overrides=[*BASE, *GAINS])
+    twin.resume_from(env.get_state())
+    twin.reset()
+    for mine, theirs in zip(env.sim.models, twin.sim.models, strict=True):
+        assert (mine.actuator_gainprm == theirs.actuator_gainprm).all()
+        assert (mine.actuator_biasprm == theirs.actuator_biasprm).all()
+    env.close(), twin.close()
+
+
+def test_a_term_that_names_nothing_it_can_change_is_one_line():
+    with pytest.raises(LabError, match="name no hinge or slide joint"):
+        go1(2, "env.events.joint_damping.joints=[root]")
+
+
+@pytest.mark.gpu
+@pytest.mark.skipif(not (all(importlib.util.find_spec(m) for m in ("warp", "mujoco_warp"))
+                         and torch.cuda.is_available()),
+                    reason='needs a CUDA GPU and MuJoCo Warp (pip install -e ".[warp]")')
+def test_each_world_of_mujoco_warp_steps_with_its_own_gains_and_joints():
+    env = go1(16, *GAINS, *JOINTS, backend="warp", device="cuda")
+    kp = env.sim.model_field("actuator_gainprm")[:, :, 0].cpu()
+    bias = env.sim.model_field("actuator_biasprm").cpu()
+    damping = env.sim.model_field("dof_damping")[:, LEGS].cpu()
+    assert ((kp >= 0.5 * 35.0 - 1e-4) & (kp <= 1.5 * 35.0 + 1e-4)).all()
+    assert torch.equal(bias[:, :, 1], -kp) and len(kp.unique(dim=0)) == 16
+    assert ((damping >= 0.1 - 1e-6) & (damping <= 0.3 + 1e-6)).all()
+    for _ in range(10):
+        env.step(torch.zeros(16, 12, device="cuda"))
+    assert torch.isfinite(env.sim.qpos).all()
+    env.close()
