@@ -92,7 +92,9 @@ class CommandRef(Term):
 class ObsTerm(RangeChecked):
     """An observation term, as Isaac Lab's: its value plus uniform noise in (-noise, noise)
     (with the task's `observation_noise` on: training; `lab play` turns it off unless asked),
-    clipped to `clip`, times `scale`."""
+    clipped to `clip`, times `scale`. `bias`: also an offset per column held through each
+    episode, uniform in (-bias, bias) drawn at its start (an encoder's or an IMU's calibration
+    error; with `observation_noise` too)."""
 
     # The raw value's unit and convention, per column (before noise, clip and scale), which
     # `lab export` writes for deployers; a term made per column may give `units` instead.
@@ -100,6 +102,7 @@ class ObsTerm(RangeChecked):
     scale: float = 1.0
     clip: Range | None = None
     noise: float = Field(0.0, ge=0.0)
+    bias: float = Field(0.0, ge=0.0)
 
 
 class BaseHeight(ObsTerm):

@@ -71,7 +71,8 @@ def _effort_limit(model: mujoco.MjModel, i: int) -> float | None:
 
 def _observations(task: RobotTask) -> list[dict[str, Any]]:
     """Per term, in input order: the term's columns (the input's names), and what the task did
-    to its raw value, in that order: noise in training (uniform in ±noise), clip, scale."""
+    to its raw value, in that order: in training a bias per episode and noise per step (each
+    uniform in ±its value), clip, scale."""
     rows, start = [], 0
     names = task.observation_names
     for built, width in zip(task._obs, task._obs_widths, strict=True):
@@ -84,10 +85,10 @@ def _observations(task: RobotTask) -> list[dict[str, Any]]:
             "source": ("command" if function in COMMAND_TERMS else
                        "last action" if function in ACTION_TERMS else "robot"),
             "scale": cfg.scale, "clip": list(cfg.clip) if cfg.clip else None,
-            "training_noise": cfg.noise,
+            "training_noise": cfg.noise, "training_bias": cfg.bias,
             # The term's own numbers (a height scan's grid and offset), to compute it alike.
             **({"settings": own} if (own := cfg.model_dump(
-                mode="json", exclude={"scale", "clip", "noise"})) else {})})
+                mode="json", exclude={"scale", "clip", "noise", "bias"})) else {})})
         start += width
     return rows
 

@@ -179,6 +179,9 @@ class RobotTask(Task):
                                   or [type(built.cfg).unit] * len(columns), strict=True)}
         self._obs_widths = [len(n) for n in names]
         self._post = ObservationPost(self, [b.cfg for b in self._obs], self._obs_widths)
+        if self._post.bias is not None:
+            self._term_resets.append(self._post.reset)
+            self._carriers.append(("observations", self._post))
 
     # the env's calls ---------------------------------------------------------------------------
     def apply_actions(self, actions: torch.Tensor) -> None:
@@ -325,8 +328,11 @@ class RobotTask(Task):
 
 
 class ObservationPost:
-    """Every term's noise, scale and clip applied to the concatenated observations at once, as
-    per-column vectors: a handful of ops per step however many terms there are."""
+    """Every term's bias, noise, scale and clip applied to the concatenated observations at
+    once, as per-column vectors: a handful of ops per step however many terms there are. The
+    biases are drawn per env at each episode's start (`reset`) and carried (`offset`)."""
+
+    carried = ("offset",)
 
     def __init__(self, task: RobotTask, terms: list[Any], widths: list[int]):
         def column(values: list[float]) -> torch.Tensor:
@@ -338,6 +344,9 @@ class ObservationPost:
         noise = [t.noise if task.cfg.observation_noise else 0.0 for t in terms]
         self.noise = column(noise) if any(noise) else None
         self.draw = torch.empty_like(self.raw)
+        bias = [t.bias if task.cfg.observation_noise else 0.0 for t in terms]
+        self.bias = column(bias) if any(bias) else None
+        self.offset = torch.zeros_like(self.raw)
         scale = [t.scale for t in terms]
         self.scale = column(scale) if any(v != 1.0 for v in scale) else None
         inf = float("inf")
@@ -345,7 +354,15 @@ class ObservationPost:
         self.clip = ((column([c[0] for c in clips]), column([c[1] for c in clips]))
                      if any(t.clip for t in terms) else None)
 
+    def reset(self, mask: torch.Tensor) -> None:
+        """New biases for the envs in `mask` (only where a term has one: `RobotTask`)."""
+        self.task.rng.uniform_(self.draw)
+        drawn = self.draw.mul_(2.0).sub_(1.0).mul_(self.bias)
+        torch.where(mask[:, None], drawn, self.offset, out=self.offset)
+
     def __call__(self, obs: torch.Tensor) -> torch.Tensor:
+        if self.bias is not None:
+            obs.add_(self.offset)
         if self.noise is not None:  # uniform in (-noise, noise), Isaac Lab's Unoise
             self.task.rng.uniform_(self.draw)
             obs.add_(self.draw.mul_(2.0).sub_(1.0).mul_(self.noise))

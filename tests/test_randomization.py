@@ -1,6 +1,8 @@
-"""Randomized joints and motors (`env.events.joint_friction|joint_damping|joint_armature|
-actuator_gains`, off by default): each env's own values in the model it steps, drawn within
-the ranges by each operation, again at resets where asked, carried through a resume."""
+"""A robot's imperfections, randomized per env. Joints and motors
+(`env.events.joint_friction|joint_damping|joint_armature|actuator_gains`, off by default): each
+env's own values in the model it steps, drawn within the ranges by each operation, again at
+resets where asked, carried through a resume. Sensors (an observation term's `bias`): an offset
+held through each episode."""
 
 from __future__ import annotations
 
@@ -74,6 +76,38 @@ def test_a_resumed_env_steps_with_the_gains_it_had():
 def test_a_term_that_names_nothing_it_can_change_is_one_line():
     with pytest.raises(LabError, match="name no hinge or slide joint"):
         go1(2, "env.events.joint_damping.joints=[root]")
+
+
+def test_an_observation_bias_is_an_offset_held_through_each_episode():
+    env = go1(64, "env.observation_noise=true", "env.observations.joint_pos.bias=0.1",
+              "env.observations.joint_pos.noise=0")
+    task = env.task
+    term = [b.name for b in task._obs].index("joint_pos")
+    built, start = task._obs[term], sum(task._obs_widths[:term])
+    columns = slice(start, start + task._obs_widths[term])
+
+    def offset() -> torch.Tensor:
+        obs = env.step(torch.zeros(64, 12))[0]
+        return obs[:, columns] - built.compute()
+
+    first = offset()
+    assert first.abs().max() <= 0.1 and first.abs().max() > 0.09
+    assert len(first.unique(dim=0)) == 64
+    torch.testing.assert_close(offset(), first, rtol=0, atol=1e-6)  # held
+    mask = torch.zeros(64, dtype=torch.bool)
+    mask[:32] = True
+    env.task.reset(mask, env.task.rng)
+    after = offset()
+    torch.testing.assert_close(after[32:], first[32:], rtol=0, atol=1e-6)
+    assert (after[:32] - first[:32]).abs().max() > 0.01
+    # Carried with the env's state, for an exact resume; the other columns have none.
+    offset_state = task.state()["observations/offset"]
+    torch.testing.assert_close(offset_state[:, columns], after, rtol=0, atol=1e-6)
+    assert not offset_state[:, :start].any()
+    env.close()
+    played = go1(4, "env.observations.joint_pos.bias=0.1", "env.observation_noise=false")
+    assert played.task._post.bias is None  # as noise: training only
+    played.close()
 
 
 @pytest.mark.gpu
