@@ -7,11 +7,13 @@ from __future__ import annotations
 
 import json
 
+import mujoco
 import onnx
 import pytest
 from typer.testing import CliRunner
 
 from labcli.commands.app import app
+from labcli.envs.task import actuator_name
 
 GO1_HOME = [0.1, 0.8, -1.5, -0.1, 0.8, -1.5, 0.1, 1.0, -1.5, -0.1, 1.0, -1.5]
 GO1_EFFORT = [23.7, 23.7, 35.55] * 4  # hip, thigh, calf (tasks/lab_locomotion/go1.xml)
@@ -84,3 +86,13 @@ def test_an_ant_export_carries_its_observation_scales(tmp_path):
     # ant's motors: the action is the torque's scale, no gains.
     for joint in meta["deployment"]["joints"]:
         assert joint["stiffness"] is None and joint["command"] == "torque"
+
+
+def test_an_unnamed_actuator_is_named_after_the_joint_it_drives():
+    model = mujoco.MjModel.from_xml_string("""
+    <mujoco><worldbody><body><joint name="knee" type="hinge"/><geom size="0.1"/>
+      <site name="s"/></body></worldbody>
+      <actuator><motor joint="knee"/><motor name="named" joint="knee"/>
+      <motor site="s" gear="0 0 0 0 0 1"/></actuator></mujoco>""")
+    assert [actuator_name(model, i) for i in range(3)] == [
+        "actuator 0 (knee)", "named", "actuator 2"]

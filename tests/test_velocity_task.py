@@ -19,6 +19,8 @@ from typer.testing import CliRunner
 
 from labcli.commands.app import app
 from labcli.envs import metrics
+from labcli.envs.env import EPISODE
+from labcli.errors import LabError
 from labcli.gym import make_env
 from labcli.plugins import registry
 from labcli.runs import config
@@ -233,6 +235,31 @@ def test_success_and_tracking_errors_per_episode_are_logged():
         assert stats[metrics.SUCCESS_RATE] == succeeded
         assert stats["Metrics/base_velocity/error_vel_xy"] == pytest.approx(speed, abs=0.1)
         assert stats["Metrics/base_velocity/error_vel_yaw"] < 0.1
+
+
+@pytest.mark.parametrize("success", [True, False])
+def test_a_termination_named_a_success_ends_its_episodes_as_successes(success):
+    """A goal reached ends the episode early, as a success (and terminal: not bootstrapped).
+    Here the goal is the feet touching the ground: it ends every episode within steps."""
+    env = go1(8, "env.terminations.base_contact.bodies=[.*_foot]",
+              f"env.terminations.base_contact.success={str(success).lower()}",
+              "env.events.push_robot=null")
+    ended = torch.zeros(8, dtype=torch.bool)
+    for _ in range(10):
+        _, _, terminated, truncated, info = env.step(torch.zeros(8, 12))
+        done = info[f"_{EPISODE}"]
+        assert torch.equal(terminated, done) and not truncated.any()
+        assert torch.equal(info[EPISODE]["success"], done & success)
+        ended |= done
+    stats = env.pop_stats()
+    env.close()
+    assert ended.all() and stats[metrics.SUCCESS_RATE] == float(success)
+
+
+def test_a_termination_is_a_time_out_or_a_success_not_both():
+    with pytest.raises(LabError, match="a time-out or a success, not both"):
+        go1(2, "env.terminations.base_contact.time_out=true",
+            "env.terminations.base_contact.success=true")
 
 
 def test_an_error_window_judges_the_velocity_kept_over_a_stride_not_each_step_s_sway():

@@ -97,6 +97,14 @@ class LabVecEnv(gym.vector.VectorEnv):
         weights = torch.tensor([reward_weights[k] for k in self.reward_names],
                                device=self.device)
         self.termination_names = [*self.task.terminations(), UNSTABLE]
+        unknown = set(self.task.success_causes) - set(self.termination_names[:-1])
+        if unknown:
+            raise LabError(f"task '{spec.name}' counts {sorted(unknown)} as success, which are "
+                           f"not among its terminations {self.termination_names[:-1]}",
+                           "name terminations() causes in success_causes")
+        self._success_rows = torch.tensor(
+            [i for i, name in enumerate(self.termination_names)
+             if name in self.task.success_causes], dtype=torch.long, device=self.device)
         self.metric_names = list(self.task.episode_metrics())
         # On the CPU a tensor reads on the host for free, and on most steps no env ends,
         # diverges or gets a non-finite action: the step asks, and skips the work that would
@@ -311,6 +319,8 @@ class LabVecEnv(gym.vector.VectorEnv):
         ended = not self._shortcuts or bool(done.any())
         success = (torch.logical_and(self.task.success(truncated), truncated, out=o.success)
                    if ended else _copy(done, o.success))
+        if ended and len(self._success_rows):  # a goal reached: ended by a success cause
+            success.logical_or_(terminated.index_select(0, self._success_rows).any(dim=0))
         episode = {"r": _copy(self.episode_return, o.r), "l": _copy(self.episode_length, o.l),
                    "success": success}
         if ended:

@@ -45,6 +45,7 @@ class Task:
     def __init__(self, cfg: TaskConfig, sim: Sim):
         self.cfg = cfg
         self.sim = sim
+        self.step_dt = sim.model.opt.timestep * cfg.decimation  # seconds an env step lasts
 
     @classmethod
     def build_model(cls, cfg: TaskConfig, source: ModelSource,
@@ -76,8 +77,7 @@ class Task:
         per action, the actuator it drives, the rule and the command's unit. This describes the
         default `apply_actions`; a task that overrides it overrides this too."""
         model = self.sim.model
-        return [{"action": action,
-                 "actuator": mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_ACTUATOR, i) or str(i),
+        return [{"action": action, "actuator": actuator_name(model, i),
                  "command": f"ctrl = {self.cfg.action_scale:g} * action",
                  "unit": self.action_units.get(action, "")}
                 for i, action in enumerate(self.action_names)]
@@ -133,11 +133,26 @@ class Task:
         the feet's air time). The default does nothing."""
 
     def success(self, time_out: torch.Tensor) -> torch.Tensor:
-        """Whether each ending episode succeeded, judged on its final state."""
+        """Whether each episode that reached its time-out succeeded, judged on its final
+        state."""
         return torch.zeros_like(time_out)
+
+    # Termination causes (names of `terminations()`) that end an episode as a success: a goal
+    # reached ends it early, and counts besides the episodes `success` judges at the time-out.
+    success_causes: frozenset[str] = frozenset()
 
     def episode_metrics(self) -> dict[str, torch.Tensor]:
         """Figures per env `[num_envs]` about the episode so far (e.g. a command's mean tracking
         error), read when episodes end: their mean over the ended episodes is logged as
         `Metrics/<name>`. The same names on every call; the default has none."""
         return {}
+
+
+def actuator_name(model: mujoco.MjModel, i: int) -> str:
+    """Actuator `i`'s name; an unnamed one's, after the joint it drives ("actuator 3 (knee)")."""
+    name = mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_ACTUATOR, i)
+    if name:
+        return name
+    joint = (mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_JOINT, int(model.actuator_trnid[i, 0]))
+             if model.actuator_trntype[i] == int(mujoco.mjtTrn.mjTRN_JOINT) else None)
+    return f"actuator {i} ({joint})" if joint else f"actuator {i}"

@@ -509,6 +509,14 @@ class SelfCollisions(RewardTerm):
 class TerminationTerm(Term):
     time_out: bool = Field(False, description="end the episode as a time-out (truncated, "
                            "bootstrapped), not as a failure")
+    success: bool = Field(False, description="an episode it ends succeeded (a goal reached), "
+                          "as well as those the task's success term judges at the time-out")
+
+    @model_validator(mode="after")
+    def _a_time_out_or_a_success(self) -> TerminationTerm:
+        if self.time_out and self.success:
+            raise ValueError("a termination is a time-out or a success, not both")
+        return self
 
 
 class TerrainOutOfBounds(TerminationTerm):

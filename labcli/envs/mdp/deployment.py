@@ -12,6 +12,8 @@ from typing import TYPE_CHECKING, Any
 
 import mujoco
 
+from labcli.envs.task import actuator_name
+
 if TYPE_CHECKING:
     from labcli.envs.mdp.task import RobotTask
 
@@ -42,7 +44,7 @@ def _joints(task: RobotTask) -> list[dict[str, Any]]:
     for i, name in enumerate(task.action_names):
         kp, kd = _gains(model, i)
         rows.append({
-            "joint": name, "actuator": model.actuator(i).name, "default_position": default[i],
+            "joint": name, "actuator": actuator_name(model, i), "default_position": default[i],
             "stiffness": kp, "damping": kd, "effort_limit": _effort_limit(model, i),
             "action_scale": scale[i], "action_offset": offset[i],
             "command": "position target" if kp is not None else "torque"})

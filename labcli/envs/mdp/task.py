@@ -37,7 +37,7 @@ from labcli.envs.mdp.terrain_grid import TerrainGrid
 from labcli.envs.models import ModelSource
 from labcli.envs.random import EnvRandom
 from labcli.envs.sim import Sim
-from labcli.envs.task import Task
+from labcli.envs.task import Task, actuator_name
 from labcli.errors import LabError
 
 AXES = ("x", "y", "z")
@@ -114,7 +114,6 @@ class RobotTask(Task):
         self._shared: dict[object, Any] = {}
         self._terms_made = False
         self.num_envs = n = sim.num_envs
-        self.step_dt = sim.model.opt.timestep * cfg.decimation
         self.robot = Robot(sim, cfg.root_body, cfg.default_pose)
         dev, dtype = sim.qpos.device, sim.qpos.dtype
         self.ones = torch.ones(n, dtype=dtype, device=dev)
@@ -134,6 +133,7 @@ class RobotTask(Task):
         self._rewards = [Built(self, name, t) for name, t in cfg.rewards.terms()]
         terminations = [Built(self, name, t) for name, t in cfg.terminations.terms()]
         self._terminations = [b for b in terminations if not b.cfg.time_out]
+        self.success_causes = frozenset(b.name for b in self._terminations if b.cfg.success)
         self._time_outs = [b for b in terminations if b.cfg.time_out]
         self._events = [Built(self, name, t) for name, t in cfg.events.terms()]
         self._success = (Built(self, "success", cfg.success) if cfg.success is not None
@@ -200,7 +200,7 @@ class RobotTask(Task):
                  "unit": self.action_units.get(name, "")}
                 for name, actuator, command in zip(
                     self.action_names,
-                    [self.model.actuator(i).name for i in range(self.model.nu)],
+                    [actuator_name(self.model, i) for i in range(self.model.nu)],
                     self.actuation.commands, strict=True)]
 
     def update(self) -> None:
