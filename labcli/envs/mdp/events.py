@@ -121,6 +121,9 @@ class _ModelEvent:
     field: ClassVar[str]
     fields: ClassVar[tuple[str, ...]]  # every field it writes (the sim makes them per env)
     carried = ("values",)
+    # How a draw becomes the value (Isaac Lab's operations): "abs" the draw itself, "add" the
+    # model's own value plus it, "scale" the model's own value times it.
+    operation = "abs"
 
     def __init__(self, task: RobotTask, rows: list[int], ranges: list[tuple[float, float]],
                  mode: str):
@@ -150,6 +153,10 @@ class _ModelEvent:
             self.sim.model_changed(field, mask)
 
     def new_values(self, drawn: torch.Tensor) -> torch.Tensor:
+        if self.operation == "scale":
+            return self.base * drawn
+        if self.operation == "add":
+            return self.base + drawn
         return drawn
 
     def write(self, values: torch.Tensor) -> None:
@@ -181,10 +188,7 @@ class randomize_rigid_body_friction(_ModelEvent):  # noqa: N801
 
 
 class _AddedToModel(_ModelEvent):
-    """The model's own value plus the draw."""
-
-    def new_values(self, drawn: torch.Tensor) -> torch.Tensor:
-        return self.base + drawn
+    operation = "add"
 
 
 class randomize_rigid_body_mass(_AddedToModel):  # noqa: N801
@@ -221,13 +225,6 @@ class _JointEvent(_ModelEvent):
         self.operation = cfg.operation
         super().__init__(task, _dofs(task, cfg.joints), [cfg.range], cfg.mode)
 
-    def new_values(self, drawn: torch.Tensor) -> torch.Tensor:
-        if self.operation == "scale":
-            return self.base * drawn
-        if self.operation == "add":
-            return self.base + drawn
-        return drawn
-
 
 class randomize_joint_friction(_JointEvent):  # noqa: N801
     field = "dof_frictionloss"
@@ -251,6 +248,7 @@ class randomize_actuator_gains(_ModelEvent):  # noqa: N801
     field = "actuator_gainprm"
     fields = ("actuator_gainprm", "actuator_biasprm")
     carried = ("values", "bias")
+    operation = "scale"
 
     def __init__(self, task: RobotTask, cfg: c.RandomizeActuatorGains):
         model = task.model
@@ -267,9 +265,6 @@ class randomize_actuator_gains(_ModelEvent):  # noqa: N801
 
     def column(self) -> torch.Tensor:
         return torch.stack([self.values[:, self.rows, 0], -self.bias[:, self.rows, 2]], dim=-1)
-
-    def new_values(self, drawn: torch.Tensor) -> torch.Tensor:
-        return self.base * drawn
 
     def write(self, values: torch.Tensor) -> None:
         self.values[:, self.rows, 0] = values[..., 0]

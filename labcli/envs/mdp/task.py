@@ -354,18 +354,20 @@ class ObservationPost:
         self.clip = ((column([c[0] for c in clips]), column([c[1] for c in clips]))
                      if any(t.clip for t in terms) else None)
 
+    def _within(self, half_width: torch.Tensor) -> torch.Tensor:
+        """A draw uniform in (-half_width, half_width) per column, Isaac Lab's Unoise."""
+        self.task.rng.uniform_(self.draw)
+        return self.draw.mul_(2.0).sub_(1.0).mul_(half_width)
+
     def reset(self, mask: torch.Tensor) -> None:
         """New biases for the envs in `mask` (only where a term has one: `RobotTask`)."""
-        self.task.rng.uniform_(self.draw)
-        drawn = self.draw.mul_(2.0).sub_(1.0).mul_(self.bias)
-        torch.where(mask[:, None], drawn, self.offset, out=self.offset)
+        torch.where(mask[:, None], self._within(self.bias), self.offset, out=self.offset)
 
     def __call__(self, obs: torch.Tensor) -> torch.Tensor:
         if self.bias is not None:
             obs.add_(self.offset)
-        if self.noise is not None:  # uniform in (-noise, noise), Isaac Lab's Unoise
-            self.task.rng.uniform_(self.draw)
-            obs.add_(self.draw.mul_(2.0).sub_(1.0).mul_(self.noise))
+        if self.noise is not None:
+            obs.add_(self._within(self.noise))
         if self.clip is not None:  # Isaac Lab's order: noise, clip, scale
             torch.maximum(obs, self.clip[0], out=obs)
             torch.minimum(obs, self.clip[1], out=obs)
