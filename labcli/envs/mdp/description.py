@@ -36,6 +36,12 @@ class Actuators(BaseModel):
     damping: float | None = Field(None, ge=0, description="kd, N m s/rad; None: from armature")
     action_scale: float | None = Field(None, gt=0, description="rad per unit of action; None: "
                                        "0.25 x effort_limit / stiffness")
+    # The joint's own losses, beside the servo's kd: Menagerie's Go1 and Go2 add damping 2 and
+    # frictionloss 0.2 to every joint, which mjlab's copy of the Go1 leaves out.
+    viscous_damping: float | None = Field(None, ge=0, description="the joint's passive damping, "
+                                          "N m s/rad; None: the model's")
+    frictionloss: float | None = Field(None, ge=0, description="the joint's dry friction, N m; "
+                                       "None: the model's")
 
     def gains(self, frequency_hz: float, damping_ratio: float) -> tuple[float, float]:
         """(kp, kd): as given, else derived from the armature."""

@@ -1,6 +1,7 @@
 """A robot description (`labcli.envs.mdp.description`) written into the model's MjSpec before
-it is compiled: each actuated joint's armature and effort limit, its actuator a PD position
-servo with the description's gains, and the contact pairs it keeps."""
+it is compiled: each actuated joint's armature, effort limit and (where given) passive damping
+and friction, its actuator a PD position servo with the description's gains, and the contact
+pairs it keeps."""
 
 from __future__ import annotations
 
@@ -27,13 +28,25 @@ def apply(spec: mujoco.MjSpec, robot: RobotDescription) -> None:
         group = found[1]
         kp, kd = group.gains(f, zeta)
         joint.armature = group.armature
+        if group.viscous_damping is not None:
+            # MuJoCo 4's damping is a polynomial in the joint's speed: linear, nothing else.
+            joint.damping[:] = 0.0
+            joint.damping[0] = group.viscous_damping
+        if group.frictionloss is not None:
+            joint.frictionloss = group.frictionloss
         # Both limits: the joint's caps whatever acts through the actuator, the actuator's what
         # the servo asks for.
         joint.actfrcrange = [-group.effort_limit, group.effort_limit]
         joint.actfrclimited = mujoco.mjtLimited.mjLIMITED_TRUE
         inherit = actuator.inheritrange  # the servo's targets: the joint's range, if so
+        was_motor = actuator.biastype == mujoco.mjtBias.mjBIAS_NONE
         actuator.set_to_position(kp=kp, kv=kd)
         actuator.inheritrange = inherit
+        if was_motor:
+            # A motor's control range is in N m (Menagerie's Go2): a servo's targets are angles,
+            # within the joint's range.
+            actuator.ctrlrange = joint.range
+            actuator.ctrllimited = joint.limited
         actuator.forcerange = [-group.effort_limit, group.effort_limit]
         actuator.forcelimited = mujoco.mjtLimited.mjLIMITED_TRUE
     if robot.contact_pairs is not None:
