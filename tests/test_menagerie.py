@@ -11,6 +11,7 @@ import http.server
 import io
 import json
 import os
+import shutil
 import subprocess
 import sys
 import tarfile
@@ -31,8 +32,9 @@ from typer.testing import CliRunner
 
 from labcli.commands.app import app
 from labcli.envs import models
-from labcli.envs.spec import Menagerie
+from labcli.envs.spec import Menagerie, TaskSpec
 from labcli.plugins import registry
+from labcli.plugins.hookspecs import hookimpl
 from labcli.runs import play, rundir, training
 
 TASK, DIST, MODULE = "menagerie-go1", "lab-menagerie-go1", "lab_menagerie_go1"
@@ -113,7 +115,8 @@ def train(logs: Path, iterations: int = 1, checkpoint: str | None = None,
                           command=["lab", "test"])
 
 
-def set_model(plugin: ModuleType, monkeypatch: pytest.MonkeyPatch, model: Menagerie) -> None:
+def set_model(plugin: ModuleType, monkeypatch: pytest.MonkeyPatch, model: Menagerie | Path
+              ) -> None:
     """The task's spec names `model` from now on, as a new version of its package would."""
     monkeypatch.setattr(plugin, "MODEL", model)
     registry.reload()
@@ -187,6 +190,51 @@ def test_a_model_that_changed_since_the_run_is_one_warning_line(plugin, tmp_path
     # The session that resumed it trained on the folder here, and records that one.
     manifest = json.loads((run.dir / rundir.MANIFEST).read_text())
     assert manifest["model"]["menagerie"]["tree"] == mm.get("unitree_go1").oid
+
+
+class FileTask:
+    """A second task whose model is `file`: a task of an installed plugin names it."""
+
+    def __init__(self, file: Path):
+        self.file = file
+
+    @hookimpl
+    def register_tasks(self, register):
+        register(TaskSpec(name="file-go1", task="labcli.envs.mdp.task:RobotTask",
+                          config=f"{MODULE}:Go1Config", model=self.file,
+                          description="Menagerie's Go1 standing, from a file"))
+
+
+@needs_menagerie("unitree_go1")
+def test_a_run_on_a_model_file_plays_on_it_while_an_installed_task_names_it(
+        plugin, monkeypatch, tmp_path, register_plugin):
+    """go1-flat's own story: its model was a file of lab's (go1-rough's still), now it is
+    Menagerie's. Its earlier runs play on their file while an installed task names it; a path
+    no installed task names is never opened (a run dir is data): the task's current model,
+    with one warning line."""
+    folder = tmp_path / "go1"
+    shutil.copytree(Path(os.environ["MENAGERIE_ROOT"]) / "unitree_go1", folder)
+    file = folder / "scene.xml"
+    set_model(plugin, monkeypatch, file)
+    run = train(tmp_path).run
+    assert json.loads((run.dir / rundir.MANIFEST).read_text())["model"] == {"file": str(file)}
+
+    set_model(plugin, monkeypatch, BARE)
+    register_plugin(FileTask(file), "file-go1")
+    loaded = play.load(run_dir=run.dir, num_envs=2)
+    try:
+        assert loaded.spec.model == file and "floor" in geom_names(loaded.env)
+    finally:
+        loaded.env.close()
+
+    registry.pm.unregister(name="file-go1")
+    registry.reload()
+    played = lab("play", "--run", str(run.dir), "--episodes", "1", logs=tmp_path)
+    assert played.exit_code == 0, played.output
+    (warning,) = [line for line in played.stderr.splitlines() if "warning" in line]
+    assert warning.startswith(f"warning: the run's model {file} is no installed task's model "
+                              "(lab opens no other file a run names): its env is built on the "
+                              "task's current model, MuJoCo Menagerie's unitree_go1")
 
 
 @pytest.mark.parametrize("model", [{"menagerie": {"robot": 5, "entry": "scene"}},

@@ -1,16 +1,19 @@
 """The model a run recorded in its run.json (`labcli/envs/models.py`'s `describe`), and the task
 spec that `lab play`, `lab export` and a resume build the run's env from: a Menagerie robot and
-entry as recorded, whatever the task names now; a file, or a run from before runs recorded
-their model, the task's current model."""
+entry, or a file that an installed task names as its model, as recorded, whatever the task names
+now; a run from before runs recorded their model, or whose file no installed task names, the
+task's current model (a run dir is data: lab opens no other file it names)."""
 
 from __future__ import annotations
 
 import dataclasses
+from pathlib import Path
 from typing import Any
 
 from labcli.envs import models
 from labcli.envs.spec import Menagerie
 from labcli.errors import LabError
+from labcli.plugins import registry
 from labcli.runs import rundir
 
 MODEL = "model"  # run.json's field
@@ -35,20 +38,39 @@ def record(run: rundir.Run) -> dict[str, Any] | None:
     return value
 
 
-def recorded_model(run: rundir.Run) -> Menagerie | None:
-    """The Menagerie robot and entry the run recorded; None for a file or no record."""
+def recorded_model(run: rundir.Run) -> Menagerie | Path | None:
+    """The Menagerie robot and entry, or the file, the run recorded; None for no record."""
     found = record(run)
-    if found is None or MENAGERIE not in found:
+    if found is None:
         return None
-    return Menagerie(found[MENAGERIE]["robot"], found[MENAGERIE]["entry"])
+    if MENAGERIE in found:
+        return Menagerie(found[MENAGERIE]["robot"], found[MENAGERIE]["entry"])
+    file = found.get("file")
+    return Path(file) if isinstance(file, str) and file else None
+
+
+def _installed_model_files() -> set[Path]:
+    """The model files that installed tasks name: the only files a run's record may point to."""
+    tasks = registry.loaded()
+    files = (getattr(tasks.get(registry.TASK, name), MODEL, None)
+             for name in tasks.names(registry.TASK))
+    return {file for file in files if isinstance(file, Path)}
 
 
 def spec_of(run: rundir.Run, spec: Any) -> tuple[Any, str | None]:
-    """`spec` with the model the run recorded, and a warning line where the installed
-    registry's folder of that robot differs from the recorded one."""
+    """`spec` with the model the run recorded, and a warning line where that model is not the
+    one the run trained on: the installed registry's folder of its robot differs from the
+    recorded one, or its file is no installed task's model (the task's current model
+    instead)."""
     model = recorded_model(run)
     if model is None or not dataclasses.is_dataclass(spec) or not hasattr(spec, MODEL):
         return spec, None
+    if isinstance(model, Path):
+        if model == spec.model or model in _installed_model_files():
+            return dataclasses.replace(spec, model=model), None
+        return spec, (f"the run's model {model} is no installed task's model (lab opens no "
+                      "other file a run names): its env is built on the task's current model, "
+                      f"{models.about_line(spec.model)}")
     menagerie = record(run)[MENAGERIE]
     warning = models.changed_since(model, menagerie.get("tree"), menagerie.get("package"))
     return dataclasses.replace(spec, model=model), warning
