@@ -8,6 +8,7 @@ from pathlib import Path
 import imageio.v2 as imageio
 import numpy as np
 import pytest
+from conftest import needs_menagerie
 from rich.console import Console
 
 from labcli.envs.render import gl
@@ -107,3 +108,20 @@ def test_without_imageio_ffmpeg_a_video_is_refused_before_any_work(monkeypatch, 
     env.close()
     assert err.value.message == "writing mp4 videos needs imageio-ffmpeg, which is not installed"
     assert not list(tmp_path.iterdir())
+
+
+@needs_menagerie("unitree_go2")
+def test_a_robot_without_a_camera_of_its_own_is_followed_not_left_behind():
+    """Menagerie's Go2 has no camera: MuJoCo's free camera would stay where the robot started
+    while it walks out of the video."""
+    import mujoco
+    from lab_locomotion import go2
+
+    from labcli.envs import models
+    from labcli.envs.render.scene import SceneRenderer
+
+    model = models.load_spec(go2.MODEL).compile()
+    assert model.ncam == 0
+    camera = SceneRenderer(model).camera
+    assert camera.type == mujoco.mjtCamera.mjCAMERA_TRACKING
+    assert camera.trackbodyid == model.body("base").id

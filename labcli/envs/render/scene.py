@@ -14,9 +14,9 @@ WIDTH, HEIGHT = 320, 240
 
 
 class SceneRenderer:
-    """Renders the state of one env of a batch through the model's first camera, or MuJoCo's
-    free camera where the model has none. The GL context is made on the first `render`, so
-    `sync` alone (for the viewer) needs none."""
+    """Renders the state of one env of a batch through the model's first camera, or a camera
+    that follows the robot where the model has none (Menagerie's Go2) or stands on terrain. The
+    GL context is made on the first `render`, so `sync` alone (for the viewer) needs none."""
 
     def __init__(self, model: mujoco.MjModel, width: int = WIDTH, height: int = HEIGHT):
         self.model = model
@@ -24,9 +24,9 @@ class SceneRenderer:
         # The offscreen buffer bounds the image; a larger request would be refused.
         self.size = (min(height, model.vis.global_.offheight),
                      min(width, model.vis.global_.offwidth))
-        self.camera: int | mujoco.MjvCamera = 0 if model.ncam else -1
-        if terrain_model.geom_ids(model):
-            self.camera = _above(model)
+        self.camera: int | mujoco.MjvCamera = 0
+        if not model.ncam or terrain_model.geom_ids(model):
+            self.camera = _following(model)
         self._renderer: mujoco.Renderer | None = None
 
     def sync(self, qpos: torch.Tensor, qvel: torch.Tensor) -> mujoco.MjData:
@@ -53,10 +53,11 @@ class SceneRenderer:
             self._renderer.close()
 
 
-def _above(model: mujoco.MjModel) -> mujoco.MjvCamera:
-    """On terrain, a camera that follows the robot from above and behind: a robot's own camera,
-    level with it a metre or two to the side, looks into the walls of the next patch's stairs.
-    Tracks the floating base (the first body with a free joint), else the first body."""
+def _following(model: mujoco.MjModel) -> mujoco.MjvCamera:
+    """A camera that follows the robot from above and behind: on terrain a robot's own camera,
+    level with it a metre or two to the side, looks into the walls of the next patch's stairs;
+    a fixed view loses a robot that walks off. Tracks the floating base (the first body with a
+    free joint), else the first body."""
     free = [b for b in range(1, model.nbody) if model.body_jntnum[b]
             and model.jnt_type[model.body_jntadr[b]] == mujoco.mjtJoint.mjJNT_FREE]
     camera = mujoco.MjvCamera()
