@@ -4,10 +4,12 @@ from __future__ import annotations
 
 import json
 import os
+import shlex
 import shutil
 import subprocess
 import sys
 from pathlib import Path
+from unittest import mock
 
 import numpy as np
 import onnx
@@ -23,6 +25,7 @@ from labcli.commands.app import app
 SMALL = ["--num-envs", "4", "--max-iterations", "2", "--set", "agent.n_steps=8",
          "--set", "agent.batch_size=16", "--set", "agent.n_epochs=1",
          "--set", "agent.normalize_obs=true"]
+TRAIN = ["train", "--task", "cartpole", "--framework", "sb3", *SMALL, "--run-name", "cli"]
 
 
 def lab(*args: str, logs: Path) -> object:
@@ -33,8 +36,9 @@ def lab(*args: str, logs: Path) -> object:
 def logs(tmp_path_factory) -> Path:
     """A logs dir with one small finished sb3 run of cartpole."""
     logs = tmp_path_factory.mktemp("logs")
-    result = lab("train", "--task", "cartpole", "--framework", "sb3", *SMALL, "--run-name", "cli",
-                 logs=logs)
+    # CliRunner leaves sys.argv as the test process's: the command line the run records.
+    with mock.patch.object(sys, "argv", ["/usr/bin/lab", *TRAIN]):
+        result = lab(*TRAIN, logs=logs)
     assert result.exit_code == 0, result.output
     return logs
 
@@ -55,8 +59,7 @@ def test_version_and_help():
 def test_train_writes_the_run_dir_and_prints_a_summary(logs):
     found = run_dir(logs)
     assert (found / "params" / "env.yaml").is_file() and (found / "params" / "agent.yaml").is_file()
-    # Under CliRunner sys.argv is pytest's; the real command line is checked by the bench script.
-    assert (found / "command.txt").read_text().startswith("lab ")
+    assert (found / "command.txt").read_text() == shlex.join(["lab", *TRAIN]) + "\n"
     summary = json.loads((found / "summary.json").read_text())
     assert summary["state"] == "finished" and summary["iterations"] == 2
     manifest = json.loads((found / "run.json").read_text())
