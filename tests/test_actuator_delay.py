@@ -8,12 +8,14 @@ import json
 
 import pytest
 import torch
+from conftest import needs_menagerie
 from typer.testing import CliRunner
 
 from labcli.commands.app import app
 from labcli.gym import make_env
 
 BASE = ["env.observation_noise=false", "env.events.push_robot=null"]
+pytestmark = needs_menagerie("unitree_go1")  # go1-flat's robot
 
 
 def go1(n: int, delay: str, *overrides: str):

@@ -10,13 +10,20 @@ import json
 import mujoco
 import onnx
 import pytest
+from conftest import needs_menagerie
+from lab_locomotion.go1 import ROBOT as GO1
 from typer.testing import CliRunner
 
 from labcli.commands.app import app
 from labcli.envs.task import actuator_name
 
-GO1_HOME = [0.1, 0.8, -1.5, -0.1, 0.8, -1.5, 0.1, 1.0, -1.5, -0.1, 1.0, -1.5]
-GO1_EFFORT = [23.7, 23.7, 35.55] * 4  # hip, thigh, calf (tasks/lab_locomotion/go1.xml)
+GO1_HOME = [0.0, 0.9, -1.8] * 4  # Menagerie's home keyframe: hip, thigh, calf of each leg
+GO1_EFFORT = [23.7, 23.7, 35.55] * 4  # hip, thigh, calf (tasks/lab_locomotion/go1.py)
+
+
+def go1_gains(joint: str) -> tuple[float, float]:
+    """(kp, kd) of `joint`'s servo, as go1-flat's robot description derives them."""
+    return GO1.group_of(joint)[1].gains(GO1.natural_frequency_hz, GO1.damping_ratio)
 
 
 def _exported(tmp_path, task: str) -> tuple[dict, dict[str, str]]:
@@ -36,6 +43,7 @@ def _exported(tmp_path, task: str) -> tuple[dict, dict[str, str]]:
     return meta, props
 
 
+@needs_menagerie("unitree_go1")
 def test_a_go1_export_says_how_to_drive_each_joint_and_what_commands_it_takes(tmp_path):
     meta, props = _exported(tmp_path, "go1-flat")
     joints = meta["deployment"]["joints"]
@@ -43,8 +51,8 @@ def test_a_go1_export_says_how_to_drive_each_joint_and_what_commands_it_takes(tm
     assert [j["default_position"] for j in joints] == pytest.approx(GO1_HOME)
     assert [j["effort_limit"] for j in joints] == pytest.approx(GO1_EFFORT)
     for joint in joints:
-        # go1.xml's position servos: kp 35, kv 0.5; go1-flat: targets = default + 0.25 * action.
-        assert (joint["stiffness"], joint["damping"]) == (35.0, 0.5)
+        # Position servos with the description's gains; targets = default + 0.25 * action.
+        assert (joint["stiffness"], joint["damping"]) == pytest.approx(go1_gains(joint["joint"]))
         assert joint["action_scale"] == 0.25
         assert joint["action_offset"] == joint["default_position"]
         assert joint["command"] == "position target"
@@ -70,7 +78,8 @@ def test_a_go1_export_says_how_to_drive_each_joint_and_what_commands_it_takes(tm
     # mjlab's keys, for deployment code written against its exports.
     assert props["joint_names"].split(",") == [j["joint"] for j in joints]
     assert [float(v) for v in props["default_joint_pos"].split(",")] == pytest.approx(GO1_HOME)
-    assert props["joint_stiffness"] == ",".join(["35.0"] * 12)
+    assert [float(v) for v in props["joint_stiffness"].split(",")] == pytest.approx(
+        [go1_gains(j["joint"])[0] for j in joints])
     assert props["command_names"] == "base_velocity"
 
 

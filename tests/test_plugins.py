@@ -237,8 +237,8 @@ def test_a_task_from_a_failed_plugin_is_a_lab_error_naming_the_failure(register_
     with pytest.raises(LabError) as err:
         registry.get_task("robot_arm")
     assert err.value.message == "unknown task 'robot_arm'"
-    assert "known tasks: ant, cartpole, g1-flat, g1-rough, go1-flat, go1-rough, humanoid" in \
-        err.value.hint
+    assert ("known tasks: ant, cartpole, g1-flat, g1-rough, go1-flat, go1-rough, go2-flat, "
+            "humanoid") in err.value.hint
     assert ("plugins that failed to load, which may provide it: 'robot' from robot "
             f"{NOT_INSTALLED}: RuntimeError: robot.xml not found") in err.value.hint
     result = CliRunner().invoke(cli.app, ["train", "--task", "robot_arm", "--framework", "sb3"])

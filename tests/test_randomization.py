@@ -10,6 +10,7 @@ import importlib.util
 
 import pytest
 import torch
+from conftest import needs_menagerie
 
 from labcli.errors import LabError
 from labcli.gym import make_env
@@ -21,12 +22,22 @@ JOINTS = ["env.events.joint_damping.range=[0.1,0.3]", "env.events.joint_damping.
           "env.events.joint_friction.range=[0.0,0.5]", "env.events.joint_friction.operation=add",
           "env.events.joint_armature.range=[0.8,1.2]", "env.events.joint_armature.mode=reset"]
 LEGS = slice(6, 18)  # go1's 12 leg dofs, after the free joint's 6
+pytestmark = [needs_menagerie("unitree_go1"), needs_menagerie("unitree_g1")]
 
 
-def go1(n: int, *overrides: str, **kwargs):
-    env = make_env("go1-flat", num_envs=n, seed=0, overrides=[*BASE, *overrides], **kwargs)
+def go1(n: int, *overrides: str, backend: str = "cpu", **kwargs):
+    env = make_env("go1-flat", num_envs=n, seed=0, overrides=[*BASE, *overrides],
+                   backend=backend, **kwargs)
     env.reset()
     return env
+
+
+def nominal_kp() -> torch.Tensor:
+    """Each servo's stiffness in go1-flat's model, as its robot description sets it."""
+    env = go1(1)
+    kp = torch.from_numpy(env.sim.model.actuator_gainprm[:, 0].copy())
+    env.close()
+    return kp
 
 
 def test_each_env_steps_with_its_own_gains_and_joints_drawn_by_each_operation():
@@ -47,7 +58,8 @@ def test_each_env_steps_with_its_own_gains_and_joints_drawn_by_each_operation():
         assert (m.dof_damping[:6] == nominal.dof_damping[:6]).all()  # the base's: untouched
         kps.append(kp.copy())
     assert len({tuple(kp) for kp in kps}) == 16
-    assert (nominal.actuator_gainprm[:, 0] == 35.0).all()  # the shared model stays nominal
+    # The shared model stays nominal.
+    assert torch.equal(torch.from_numpy(nominal.actuator_gainprm[:, 0]), nominal_kp())
 
     # At a reset, only the reset-mode terms draw again, and only for the envs reset.
     armature = torch.stack([torch.from_numpy(m.dof_armature.copy()) for m in models])
@@ -64,7 +76,8 @@ def test_a_resumed_env_steps_with_the_gains_it_had():
     env = go1(4, *GAINS)
     for _ in range(3):
         env.step(torch.zeros(4, 12))
-    twin = make_env("go1-flat", num_envs=4, seed=9, overrides=[*BASE, *GAINS])
+    twin = make_env("go1-flat", num_envs=4, seed=9, overrides=[*BASE, *GAINS],
+                    backend="cpu")
     twin.resume_from(env.get_state())
     twin.reset()
     for mine, theirs in zip(env.sim.models, twin.sim.models, strict=True):
@@ -75,7 +88,8 @@ def test_a_resumed_env_steps_with_the_gains_it_had():
 
 def test_a_term_that_names_nothing_it_can_change_is_one_line():
     with pytest.raises(LabError, match="name no hinge or slide joint"):
-        go1(2, "env.events.joint_damping.joints=[root]")
+        make_env("g1-flat", num_envs=2, backend="cpu",
+                 overrides=["env.events.joint_damping.joints=[floating_base_joint]"])
 
 
 def test_an_observation_bias_is_an_offset_held_through_each_episode():
@@ -119,7 +133,8 @@ def test_each_world_of_mujoco_warp_steps_with_its_own_gains_and_joints():
     kp = env.sim.model_field("actuator_gainprm")[:, :, 0].cpu()
     bias = env.sim.model_field("actuator_biasprm").cpu()
     damping = env.sim.model_field("dof_damping")[:, LEGS].cpu()
-    assert ((kp >= 0.5 * 35.0 - 1e-4) & (kp <= 1.5 * 35.0 + 1e-4)).all()
+    kp0 = nominal_kp().float()
+    assert ((kp >= 0.5 * kp0 - 1e-4) & (kp <= 1.5 * kp0 + 1e-4)).all()
     assert torch.equal(bias[:, :, 1], -kp) and len(kp.unique(dim=0)) == 16
     assert ((damping >= 0.1 - 1e-6) & (damping <= 0.3 + 1e-6)).all()
     for _ in range(10):

@@ -8,7 +8,7 @@ import math
 import mujoco
 import pytest
 from conftest import needs_menagerie
-from lab_locomotion import g1
+from lab_locomotion import g1, go1, go2
 from lab_locomotion.config import G1FlatConfig
 from pydantic import ValidationError
 
@@ -78,6 +78,46 @@ def test_the_task_config_takes_the_description_from_set():
     with pytest.raises(ValidationError, match="effort_limit"):
         G1FlatConfig.model_validate({"robot": {"actuators": {"a": {"joints": [".*"],
                                                                    "armature": 0.1}}}})
+
+
+@needs_menagerie("unitree_go1")
+def test_the_joints_own_damping_and_friction_are_the_description_s_where_it_gives_them():
+    """Menagerie's Go1 gives every joint damping 2 (the hips' abduction 1) and frictionloss
+    0.2; go1-flat's description takes them out, as mjlab's copy of the model does. Left out
+    (None), they stay the model's."""
+    legs = slice(6, 18)
+    model = models.load_spec(go1.MODEL).compile()
+    assert sorted(set(model.dof_damping[legs])) == [1.0, 2.0]
+    assert set(model.dof_frictionloss[legs]) == {0.2}
+    spec = models.load_spec(go1.MODEL)
+    robot_model.apply(spec, go1.ROBOT)
+    model = spec.compile()
+    assert not model.dof_damping[legs].any() and not model.dof_frictionloss[legs].any()
+    kept = go1.ROBOT.model_copy(deep=True)
+    kept.actuators["knee"].viscous_damping = kept.actuators["knee"].frictionloss = None
+    spec = models.load_spec(go1.MODEL)
+    robot_model.apply(spec, kept)
+    model = spec.compile()
+    knee = model.joint("FR_calf_joint").dofadr[0]
+    assert (model.dof_damping[knee], model.dof_frictionloss[knee]) == (2.0, 0.2)
+    assert model.dof_damping[model.joint("FR_thigh_joint").dofadr[0]] == 0.0
+
+
+@needs_menagerie("unitree_go2")
+def test_a_torque_motor_becomes_a_servo_aiming_within_its_joint_s_range():
+    """Menagerie's Go2 drives its joints with torque motors (control ±23.7 N m): as servos
+    their targets are angles, so their control range becomes the joint's."""
+    before = models.load_spec(go2.MODEL).compile()
+    assert before.actuator("FR_hip").ctrlrange == pytest.approx([-23.7, 23.7])
+    spec = models.load_spec(go2.MODEL)
+    robot_model.apply(spec, go2.ROBOT)
+    model = spec.compile()
+    for name, joint in (("FR_hip", "FR_hip_joint"), ("RL_calf", "RL_calf_joint")):
+        actuator = model.actuator(name)
+        assert actuator.gainprm[0] == 25.0
+        assert actuator.biasprm[:3] == pytest.approx([0.0, -25.0, -0.5])
+        assert actuator.ctrlrange == pytest.approx(model.joint(joint).range)
+    assert model.actuator("RL_calf").forcerange == pytest.approx([-45.43, 45.43])
 
 
 def test_a_joint_no_group_matches_is_one_line():

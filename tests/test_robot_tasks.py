@@ -10,6 +10,7 @@ import mujoco
 import pytest
 import torch
 from backends import lift_and_copy, worst_gaps
+from conftest import needs_menagerie
 from lab_locomotion.config import AntConfig, AntObservations, AntTerminations, LocomotionEvents
 from lab_locomotion.plugin import HERE
 from oneline import assert_one_line_error
@@ -312,7 +313,8 @@ def test_play_turns_observation_noise_off_unless_asked_and_sets_nothing_else(tmp
                           "env.observation_noise")
 
 
-@pytest.mark.parametrize("task", ["humanoid", "go1-flat"])
+@pytest.mark.parametrize("task", ["humanoid", pytest.param("go1-flat", marks=needs_menagerie(
+    "unitree_go1"))])
 def test_the_thread_count_does_not_change_a_robot_tasks_trajectory(task):
     """Contacts, sensors, per-env models (go1-flat's friction and mass) and resets: the same
     outputs bit for bit on one thread, on two (the calling thread and a worker) and on MuJoCo's

@@ -16,6 +16,7 @@ import time
 
 import pytest
 import torch
+from conftest import needs_menagerie
 from lab_cartpole.cartpole import Cartpole
 
 from labcli.envs import metrics
@@ -61,8 +62,9 @@ def assert_same(a: list[torch.Tensor], b: list[torch.Tensor]) -> None:
     ("cartpole", 128, "next_step", 200, {}),
     # Draws every step (observation noise, pushes) and on resets: time-outs every 15 steps;
     # each physics step's own control (a motor's latency).
-    ("go1-flat", 64, "same_step", 40, {"episode_length_s": 0.3,
-                                       "actions": {"scale": 0.25, "delay": (1, 7)}}),
+    pytest.param("go1-flat", 64, "same_step", 40,
+                 {"episode_length_s": 0.3, "actions": {"scale": 0.25, "delay": (1, 7)}},
+                 marks=needs_menagerie("unitree_go1")),
 ])
 def test_shards_give_the_outputs_of_one_env(task, num_envs, mode, steps, cfg):
     spec = registry.get_task(task)
@@ -85,7 +87,8 @@ def test_shards_give_the_outputs_of_one_env(task, num_envs, mode, steps, cfg):
     ("cartpole", 256, 60, {}),
     # Masses and centres of mass drawn per env: a worker steps the caller's envs on its own
     # models with their values.
-    ("go1-flat", 64, 30, {"episode_length_s": 0.3}),
+    pytest.param("go1-flat", 64, 30, {"episode_length_s": 0.3},
+                 marks=needs_menagerie("unitree_go1")),
 ])
 def test_workers_step_a_slow_shards_physics_and_the_outputs_stay_one_envs(
         monkeypatch, task, num_envs, steps, cfg):

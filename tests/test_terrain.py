@@ -12,6 +12,7 @@ import mujoco
 import numpy as np
 import pytest
 import torch
+from conftest import needs_menagerie
 from pydantic import ValidationError
 
 from labcli.envs.mdp import terrain as t
@@ -182,6 +183,7 @@ def test_a_go1_stands_on_the_hardest_patch_of_each_type():
         assert touching & feet == feet, name
 
 
+@needs_menagerie("unitree_go1")
 def test_a_preview_is_written(tmp_path):
     cfg = _small()
     model, terrain = _build(cfg)
@@ -207,6 +209,7 @@ def _go1_on_terrain(n: int = 8, **changes):
     return env
 
 
+@needs_menagerie("unitree_go1")
 def test_robots_start_on_their_patches_of_the_levels_they_may_start_on():
     env = _go1_on_terrain()
     grid, robot = env.task.terrain, env.task.robot
@@ -225,6 +228,7 @@ def test_robots_start_on_their_patches_of_the_levels_they_may_start_on():
     assert torch.allclose(robot.root_pos[:, 2], origin[:, 2] + home)
 
 
+@needs_menagerie("unitree_go1")
 def test_the_height_scan_is_what_mujocos_rays_see():
     from labcli.envs.mdp import config as c
     from labcli.envs.mdp import observations as o
@@ -257,6 +261,7 @@ def test_the_height_scan_is_what_mujocos_rays_see():
     assert np.mean(agree) > 0.95, np.mean(agree)
 
 
+@needs_menagerie("unitree_go1")
 def test_the_curriculum_moves_envs_up_and_down_as_legged_gym_does():
     env = _go1_on_terrain()
     task = env.task
@@ -278,6 +283,7 @@ def test_the_curriculum_moves_envs_up_and_down_as_legged_gym_does():
     assert levels[7] == 2  # not reset: unchanged
 
 
+@needs_menagerie("unitree_go1")
 def test_the_terrain_state_travels_with_the_task_state_and_its_levels_are_logged():
     env = _go1_on_terrain()
     state = env.task.state()
@@ -291,6 +297,7 @@ def test_the_terrain_state_travels_with_the_task_state_and_its_levels_are_logged
     assert figures["terrain/level/stairs"].mean() == pytest.approx(float(level[4:].mean()))
 
 
+@needs_menagerie("unitree_go1")
 def test_a_height_scan_without_terrain_is_one_line():
     from labcli.envs.mdp import config as c
     from labcli.envs.mdp import observations as o
@@ -306,6 +313,7 @@ def test_a_height_scan_without_terrain_is_one_line():
 @pytest.mark.skipif(not (all(importlib.util.find_spec(m) for m in ("warp", "mujoco_warp"))
                          and torch.cuda.is_available()),
                     reason='needs a CUDA GPU and MuJoCo Warp (pip install -e ".[warp]")')
+@needs_menagerie("unitree_go1")
 def test_both_backends_stand_go1s_on_the_terrain_and_scan_it_alike():
     """MuJoCo Warp collides with the height fields and boxes as MuJoCo does: from the same
     state, robots holding their pose stay on their patches on both backends, and the height
@@ -342,6 +350,7 @@ def test_both_backends_stand_go1s_on_the_terrain_and_scan_it_alike():
     assert torch.allclose(scans[1].cpu().double(), scans[0], atol=1e-4)
 
 
+@needs_menagerie("unitree_g1")
 def test_heights_the_terms_read_are_above_the_terrain_under_them():
     """On stairs down (every platform sunk 0.4 m or more) the G1's pelvis and soles stand as
     high above the ground as on flat ground: the base-height terms and the feet's heights read
@@ -421,6 +430,7 @@ def test_a_robot_at_the_terrains_edge_ends_its_episode_as_a_time_out():
     assert not terminated.any()
 
 
+@needs_menagerie("unitree_go1")
 def test_upright_against_the_terrain_is_square_to_its_slope():
     from labcli.envs.mdp import config as c
     from labcli.envs.mdp import rewards

@@ -12,6 +12,8 @@ from typing import Any, ClassVar
 from pydantic import Field
 
 from lab_locomotion.g1 import ROBOT as G1
+from lab_locomotion.go1 import ROBOT as GO1
+from lab_locomotion.go2 import ROBOT as GO2
 from labcli.envs.mdp import config as c
 from labcli.envs.mdp import terrain as t
 from labcli.envs.mdp.description import RobotDescription
@@ -125,7 +127,9 @@ class Go1FlatRewards(c.Group):
     dof_torques_l2: c.JointTorquesL2 | None = c.JointTorquesL2(weight=-2e-4)
     dof_acc_l2: c.JointAccL2 | None = c.JointAccL2(weight=-2.5e-7)
     action_rate_l2: c.ActionRateL2 | None = c.ActionRateL2(weight=-0.01)
-    feet_air_time: c.FeetAirTime | None = c.FeetAirTime(weight=0.25, bodies=[".*_foot"],
+    # Menagerie's Go1 and Go2 have each foot as a sphere on its calf: the calves' contacts are
+    # the feet's.
+    feet_air_time: c.FeetAirTime | None = c.FeetAirTime(weight=0.25, bodies=[".*_calf"],
                                                           threshold_s=0.5)
     # Isaac Lab's Go1 leaves undesired (thigh) contacts out: --set it to turn it on.
     undesired_contacts: c.UndesiredContacts | None = None
@@ -156,9 +160,15 @@ class Go1FlatConfig(c.RobotTaskConfig):
     # Isaac Lab's _PLAY config: no noise, no pushes.
     play_overrides: ClassVar[dict[str, Any]] = {**c.RobotTaskConfig.play_overrides,
                                                 "events": {"push_robot": None}}
+    robot: RobotDescription | None = GO1
     num_envs: int = Field(256, gt=0, le=2**20, description="parallel environments")
     episode_length_s: float = Field(20.0, gt=0, le=1e6, description="time-out, in seconds")
     decimation: int = Field(4, gt=0, le=1000, description="physics steps per env step")
+    sim_dt: float | None = Field(0.005, gt=0, description="physics step")
+    # mjlab's solver settings (Menagerie's scenes have MuJoCo's 100 and 50, or 5 and 8 in the
+    # G1's scene_mjx).
+    solver_iterations: int | None = Field(10, gt=0, le=1000)
+    ls_iterations: int | None = Field(20, gt=0, le=1000)
     nconmax: int | None = 16
     njmax: int | None = 72
     actions: c.JointPosition = c.JointPosition(scale=0.25)
@@ -174,6 +184,25 @@ class Go1FlatConfig(c.RobotTaskConfig):
     success: c.TrackedCommand | None = c.TrackedCommand(lin_vel_error=0.25, ang_vel_error=0.3)
     # As Isaac Lab's velocity tasks: a return is the weighted terms' integral over the episode.
     rewards_per_second: bool = True
+
+
+# Isaac Lab's Isaac-Velocity-Flat-Unitree-Go2-v0 (config/go2/{rough,flat}_env_cfg.py): go1-flat's
+# recipe on the Go2, whose base body is `base`.
+class Go2Terminations(c.Group):
+    base_contact: c.IllegalContact | None = c.IllegalContact(bodies=["base"], threshold=1.0)
+
+
+class Go2Events(Go1Events):
+    add_base_mass: c.RandomizeMass | None = c.RandomizeMass(bodies=["base"],
+                                                            mass_range=(-1.0, 3.0))
+    base_com: c.RandomizeCom | None = c.RandomizeCom(
+        bodies=["base"], com_range={"x": (-0.05, 0.05), "y": (-0.05, 0.05), "z": (-0.01, 0.01)})
+
+
+class Go2FlatConfig(Go1FlatConfig):
+    robot: RobotDescription | None = GO2
+    terminations: Go2Terminations = Go2Terminations()
+    events: Go2Events = Go2Events()
 
 
 # The Unitree G1 on flat ground: mjlab's Mjlab-Velocity-Flat-Unitree-G1 (tasks/velocity/
@@ -263,10 +292,6 @@ class G1FlatConfig(Go1FlatConfig):
 
     robot: RobotDescription | None = G1
     default_pose: str | None = "knees_bent"
-    sim_dt: float | None = Field(0.005, gt=0, description="physics step")
-    # mjlab's solver settings (Menagerie's scene_mjx has 5 and 8).
-    solver_iterations: int | None = Field(10, gt=0, le=1000)
-    ls_iterations: int | None = Field(20, gt=0, le=1000)
     nconmax: int | None = 35
     njmax: int | None = 300
     actions: c.JointPosition = c.JointPosition(scale=None)
@@ -319,6 +344,9 @@ ROUGH_PLAY = {**Go1FlatConfig.play_overrides, "terrain": {"curriculum": False}}
 
 class Go1RoughConfig(Go1FlatConfig):
     play_overrides: ClassVar[dict[str, Any]] = ROUGH_PLAY
+    # go1-rough's Go1 is go1_datasheet.py's MJCF, with its own motors: its recipe was measured
+    # on it (docs/benchmarks.md), not yet on Menagerie's.
+    robot: RobotDescription | None = None
     terrain: TerrainConfig | None = Field(default_factory=go1_terrain)
     # Height fields and stair edges touch a foot at more points than a plane.
     nconmax: int | None = 40

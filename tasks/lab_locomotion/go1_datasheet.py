@@ -1,9 +1,9 @@
 """go1-rough's Unitree Go1 (go1-flat's is Menagerie's: go1.py), written from its numbers: link
 masses, centers of mass and principal inertias from Unitree's published URDF (go1_description;
-the calf's 0.196 kg split into calf and foot as there), joint ranges and motor limits from its datasheet (23.7 N m hip and thigh, 35.55 N m knee),
-rotor inertia 1.11842e-4 kg m^2 reflected through 6:1 and 9:1 gearboxes as armature, and
-stiff PD gains (kp 35 N m/rad, kd 0.5 N m s/rad: an earlier mjlab Go1 config's). The
-standing pose is Isaac Lab's.
+the calf's 0.196 kg split into calf and foot as there), joint ranges and motor limits from its
+datasheet (23.7 N m hip and thigh, 35.55 N m knee), rotor inertia 1.11842e-4 kg m^2 reflected
+through 6:1 and 9:1 gearboxes as armature, and stiff PD gains (kp 35 N m/rad, kd 0.5 N m s/rad:
+an earlier mjlab Go1 config's). The standing pose is Isaac Lab's.
 """
 
 from lab_locomotion.quadruped import Link, Motor, Quadruped

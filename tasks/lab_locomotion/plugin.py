@@ -1,9 +1,9 @@
-"""Registers ant, humanoid and go1-flat through the same hook a third-party package would
+"""Registers the locomotion tasks through the same hook a third-party package would
 use."""
 
 from pathlib import Path
 
-from lab_locomotion import g1
+from lab_locomotion import g1, go1, go2
 from labcli.envs.spec import TaskSpec
 from labcli.plugins.hookspecs import hookimpl
 
@@ -54,6 +54,8 @@ def _defaults(num_envs: int, max_iterations: int) -> dict:
 
 
 SUCCESS = "8 m or more toward the target by the 16 s time-out"
+QUADRUPED_SUCCESS = ("at the 20 s time-out, mean tracking errors under 0.25 m/s (xy) and "
+                     "0.3 rad/s (yaw rate)")
 
 
 def _spec(name: str, config: str, description: str, max_iterations: int) -> TaskSpec:
@@ -146,11 +148,17 @@ def register_tasks(register):
                    "runs toward a target 1 km ahead", max_iterations=1000))
     register(TaskSpec(
         name="go1-flat", task=TASK, config="lab_locomotion.config:Go1FlatConfig",
-        model=HERE / "go1.xml",
-        description="Isaac Lab's Velocity-Flat-Unitree-Go1: a Go1 quadruped tracks velocity "
-                    "commands on flat ground",
-        success="at the 20 s time-out, mean tracking errors under 0.25 m/s (xy) and 0.3 rad/s "
-                "(yaw rate)",
+        model=go1.MODEL,
+        description="Isaac Lab's Velocity-Flat-Unitree-Go1: MuJoCo Menagerie's Unitree Go1 "
+                    "quadruped tracks velocity commands on flat ground",
+        success=QUADRUPED_SUCCESS,
+        framework_defaults=_velocity_defaults(num_envs=256, max_iterations=300)))
+    register(TaskSpec(
+        name="go2-flat", task=TASK, config="lab_locomotion.config:Go2FlatConfig",
+        model=go2.MODEL,
+        description="Isaac Lab's Velocity-Flat-Unitree-Go2: MuJoCo Menagerie's Unitree Go2 "
+                    "quadruped tracks velocity commands on flat ground",
+        success=QUADRUPED_SUCCESS,
         framework_defaults=_velocity_defaults(num_envs=256, max_iterations=300)))
     register(TaskSpec(
         name="g1-flat", task=TASK, config="lab_locomotion.config:G1FlatConfig", model=g1.MODEL,
@@ -162,10 +170,10 @@ def register_tasks(register):
     register(TaskSpec(
         name="go1-rough", task=TASK, config="lab_locomotion.config:Go1RoughConfig",
         model=HERE / "go1.xml",
-        description="Isaac Lab's Velocity-Rough-Unitree-Go1: go1-flat on stairs, boxes, "
-                    "slopes and rough ground, with a height scan and a terrain curriculum",
-        success="at the 20 s time-out, mean tracking errors under 0.25 m/s (xy) and 0.3 rad/s "
-                "(yaw rate)",
+        description="Isaac Lab's Velocity-Rough-Unitree-Go1: a Go1 (lab's model from its "
+                    "datasheet) on stairs, boxes, slopes and rough ground, with a height scan "
+                    "and a terrain curriculum",
+        success=QUADRUPED_SUCCESS,
         framework_defaults=_with_network(_velocity_defaults(
             num_envs=256, max_iterations=GO1_ROUGH_ITERATIONS), ROUGH_NETWORK)))
     register(TaskSpec(

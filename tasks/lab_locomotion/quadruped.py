@@ -1,9 +1,10 @@
 """A four-legged robot's MJCF from its numbers: a trunk and four legs of hip (abduction, x
 axis), thigh and calf (pitch, y axis) joints driven by PD position actuators, a spherical foot
 at the end of each calf, primitive collision geometry, on a flat plane. A robot is one
-`Quadruped` (e.g. go1.py); its MJCF is written next to it, and checked against it by the tests:
+`Quadruped` (e.g. go1_datasheet.py); its MJCF is written next to it, named after the robot, and
+checked against it by the tests:
 
-    python -m lab_locomotion.quadruped go1
+    python -m lab_locomotion.quadruped go1_datasheet
 """
 
 from __future__ import annotations
@@ -116,8 +117,9 @@ def _motor(name: str, axis: str, m: Motor) -> str:
             f'forcerange="{_v((-m.effort, m.effort))}"/></default>')
 
 
-def mjcf(q: Quadruped, standing_height: float = 0.0) -> str:
-    """The robot's MJCF. `standing_height`: the trunk's height in the "home" keyframe."""
+def mjcf(q: Quadruped, standing_height: float = 0.0, module: str = "") -> str:
+    """The robot's MJCF. `standing_height`: the trunk's height in the "home" keyframe; `module`:
+    lab_locomotion's module that holds `q`, named in the file's header."""
     legs = "".join(_leg(q, leg) for leg in LEGS)
     actuators = "\n    ".join(f'<position name="{leg}_{part}" class="{part}" '
                                f'joint="{leg}_{part}_joint"/>'
@@ -127,8 +129,8 @@ def mjcf(q: Quadruped, standing_height: float = 0.0) -> str:
         front, left = leg[0] == "F", leg[1] == "L"
         home += [q.stand_hip if left else -q.stand_hip,
                  q.stand_thigh[0] if front else q.stand_thigh[1], q.stand_calf]
-    return f"""<!-- {q.name}: written by `python -m lab_locomotion.quadruped {q.name}` from
-     {q.name}.py; edit that file, not this one. -->
+    return f"""<!-- {q.name}: written by `python -m lab_locomotion.quadruped {module}` from
+     {module}.py; edit that file, not this one. -->
 <mujoco model="{q.name}">
   <compiler angle="radian" autolimits="true"/>
   <option timestep="{q.timestep:.6g}" iterations="10" ls_iterations="20"/>
@@ -181,11 +183,11 @@ def standing_height(q: Quadruped) -> float:
     return round(1.0 - (lowest - q.foot_radius), 4)
 
 
-def write(q: Quadruped, path: Path) -> None:
-    path.write_text(mjcf(q, standing_height(q)))
+def write(q: Quadruped, path: Path, module: str) -> None:
+    path.write_text(mjcf(q, standing_height(q), module))
 
 
 if __name__ == "__main__":
-    name = sys.argv[1] if len(sys.argv) > 1 else "go1"
-    robot = importlib.import_module(f"lab_locomotion.{name}").ROBOT
-    write(robot, Path(__file__).with_name(f"{name}.xml"))
+    module = sys.argv[1] if len(sys.argv) > 1 else "go1_datasheet"
+    robot = importlib.import_module(f"lab_locomotion.{module}").ROBOT
+    write(robot, Path(__file__).with_name(f"{robot.name}.xml"), module)
