@@ -51,8 +51,9 @@ def train(
     nproc: Annotated[int | None, typer.Option(
         help="Data-parallel ranks on this host, each with --num-envs envs (rsl_rl, skrl): "
              "the batch grows with the ranks, and so does rsl_rl's KL target "
-             "(agent.kl_grows_with_ranks); the same as torchrun "
-             "--nproc-per-node N -m labcli train ... (docs/scale.md)")] = None,
+             "(agent.kl_grows_with_ranks). For one GPU's batch split over the ranks instead, "
+             "give --num-envs E/N and --set agent.kl_grows_with_ranks=false. The same as "
+             "torchrun --nproc-per-node N -m labcli train ... (docs/scale.md)")] = None,
     nnodes: Annotated[str | None, typer.Option(
         help="With --nproc: hosts taking part, N or MIN:MAX (run the command on each).")] = None,
     rdzv_endpoint: Annotated[str | None, typer.Option(
