@@ -1,8 +1,10 @@
-"""The framework conformance suite: checks every framework plugin must pass, built-in or not.
+"""The conformance suites: checks every framework plugin and every task plugin must pass,
+built-in or not.
 
-A plugin's own tests call `check_framework("myfw", tmp_path, SMALL)` (or the single checks) with
-`--set` overrides that make its agent tiny. Each check trains the real cartpole task at a small
-size and fails with an AssertionError that names the framework and what it got wrong.
+A framework plugin's own tests call `check_framework("myfw", tmp_path, SMALL)` (or the single
+checks) with `--set` overrides that make its agent tiny. Each check trains the real cartpole task
+at a small size and fails with an AssertionError that names the framework and what it got wrong.
+A task plugin's call `check_task("mytask")`: below, after the framework checks.
 """
 
 from __future__ import annotations
@@ -21,13 +23,13 @@ import numpy as np
 import torch
 from rich.console import Console
 
-from labcli.envs import metrics, wrappers
+from labcli.envs import make, metrics, wrappers
 from labcli.envs.env import LabVecEnv
 from labcli.envs.wrappers import Stage
 from labcli.plugins import registry
 from labcli.plugins.framework import Checkpoint, FrameworkSpec
 from labcli.plugins.policy import Policy
-from labcli.runs import checkpoints, loading, rundir, training
+from labcli.runs import checkpoints, config, loading, rundir, training
 from labcli.runs.plot import read_scalars
 from labcli.runs.session import TrainOutcome
 
@@ -420,3 +422,155 @@ def check_framework(name: str, tmp_path: Path, small_overrides: Sequence[str] = 
     check_export(name, tmp_path / "export", small_overrides)
     if improve_overrides is not None:
         check_training_improves(name, tmp_path / "improve", improve_overrides)
+
+
+# Tasks -------------------------------------------------------------------------------------------
+# A task plugin's own tests call `check_task("mytask")` (with `overrides` that make it small). Each
+# check builds the real task on the cpu backend and fails with an AssertionError that names the
+# task and what it got wrong.
+
+TASK_ENVS = 4
+TASK_STEPS = 16
+
+
+def task_env(task: str, overrides: Sequence[str] = (), num_envs: int = TASK_ENVS,
+             seed: int = 0) -> LabVecEnv:
+    """Task `task`'s env on the cpu backend, its config the task's defaults under `overrides`
+    ("env.KEY=VALUE", as `--set` takes them)."""
+    spec = registry.get_task(task)
+    layers = [config.parse_set(overrides)["env"], {"num_envs": num_envs}]
+    return make.make_env(spec, config.build(spec.config_class, "env", layers), backend="cpu",
+                         device="cpu", seed=seed)
+
+
+def _task_actions(env: LabVecEnv, steps: int, seed: int = 0) -> list[torch.Tensor]:
+    """`steps` batches of actions drawn uniformly within the action space (or ±1 where it is
+    unbounded), the same for the same seed."""
+    space = env.single_action_space
+    low = torch.as_tensor(np.maximum(space.low, -1.0), dtype=torch.float32)
+    high = torch.as_tensor(np.minimum(space.high, 1.0), dtype=torch.float32)
+    draw = torch.Generator().manual_seed(seed)
+    return [low + (high - low) * torch.rand((env.num_envs, *space.shape), generator=draw)
+            for _ in range(steps)]
+
+
+def _rollout(env: LabVecEnv, actions: list[torch.Tensor]) -> list[tuple[torch.Tensor, ...]]:
+    return [tuple(t.clone() for t in env.step(a)[:4]) for a in actions]
+
+
+def _assert_task_values_finite(task: str, env: LabVecEnv, when: str) -> None:
+    """The task's own observations and reward terms, before the env puts zeros in place of a
+    non-finite value (which keeps training alive but hides the task's bug)."""
+    raw = env.task.observations()
+    bad = torch.isfinite(raw).logical_not().any(dim=0).nonzero().flatten().tolist()
+    assert not bad, (f"task {task!r}: its observations {[env.observation_names[i] for i in bad]} "
+                     f"{when} are not finite")
+    for name, value in env.task.reward_terms().items():
+        assert torch.isfinite(value).all(), f"task {task!r}: its reward term {name!r} {when} is " \
+                                            "not finite"
+
+
+def check_task_outputs(task: str, overrides: Sequence[str] = ()) -> None:
+    """Observations, rewards and episode flags of a reset and of steps under random actions:
+    their shapes and dtypes, finite values (the task's own, before the env's guard), one name
+    per observation column, one command rule per action."""
+    env = task_env(task, overrides)
+    try:
+        n, width = env.num_envs, len(env.observation_names)
+        assert env.single_observation_space.shape == (width,), (
+            f"task {task!r}: observation space {env.single_observation_space.shape}, but "
+            f"{width} observation names")
+        assert len(env.describe()["actions"]) == env.single_action_space.shape[0], (
+            f"task {task!r}: {len(env.describe()['actions'])} action commands for an action "
+            f"space of {env.single_action_space.shape}")
+        obs, _ = env.reset(seed=0)
+        assert obs.shape == (n, width) and obs.dtype == torch.float32, (
+            f"task {task!r}: reset's observations are {tuple(obs.shape)} {obs.dtype}, not "
+            f"({n}, {width}) float32")
+        _assert_task_values_finite(task, env, "at reset")
+        for step, action in enumerate(_task_actions(env, TASK_STEPS), start=1):
+            obs, reward, terminated, truncated, _ = env.step(action)
+            assert obs.shape == (n, width), (
+                f"task {task!r}: step {step}'s observations are {tuple(obs.shape)}")
+            assert reward.shape == (n,) and torch.isfinite(reward).all(), (
+                f"task {task!r}: step {step}'s rewards are {tuple(reward.shape)}, or not finite")
+            for name, flag in (("terminated", terminated), ("truncated", truncated)):
+                assert flag.shape == (n,) and flag.dtype == torch.bool, (
+                    f"task {task!r}: step {step}'s {name} is {tuple(flag.shape)} {flag.dtype}, "
+                    f"not ({n},) bool")
+            _assert_task_values_finite(task, env, f"after step {step}")
+    finally:
+        env.close()
+
+
+def check_task_episodes(task: str, overrides: Sequence[str] = ()) -> None:
+    """Episodes shortened to a few steps end in every env, and their figures are counted: the
+    number of episodes and a success rate within [0, 1]."""
+    probe = task_env(task, overrides, num_envs=1)
+    episode = 4 * probe.step_dt
+    probe.close()
+    env = task_env(task, [*overrides, f"env.episode_length_s={episode!r}"])
+    try:
+        env.reset(seed=0)
+        ended = torch.zeros(env.num_envs, dtype=torch.bool)
+        for _, _, terminated, truncated in _rollout(env, _task_actions(env, 6)):
+            ended |= terminated | truncated
+        stats = env.pop_stats()
+        stuck = ended.logical_not().nonzero().flatten().tolist()
+        assert not stuck, (f"task {task!r}: envs {stuck} did not end within 6 steps of 4-step "
+                           "episodes")
+        assert stats.get(metrics.EPISODES, 0) >= env.num_envs, (
+            f"task {task!r}: {stats.get(metrics.EPISODES, 0)} episodes counted of "
+            f"{env.num_envs} or more that ended")
+        assert 0.0 <= stats[metrics.SUCCESS_RATE] <= 1.0, (
+            f"task {task!r}: success rate {stats[metrics.SUCCESS_RATE]}")
+    finally:
+        env.close()
+
+
+def check_task_determinism(task: str, overrides: Sequence[str] = ()) -> None:
+    """Two envs of one seed under the same actions give the same outputs, bit for bit."""
+    runs = []
+    for _ in range(2):
+        env = task_env(task, overrides, seed=3)
+        try:
+            env.reset(seed=3)
+            runs.append(_rollout(env, _task_actions(env, TASK_STEPS)))
+        finally:
+            env.close()
+    _assert_same_outputs(task, "two envs of one seed", *runs)
+
+
+def check_task_resume(task: str, overrides: Sequence[str] = ()) -> None:
+    """An env of another seed, resumed from a first one's state, goes on as the first does:
+    everything the task carries from step to step is in `Task.state`. Observation noise is
+    off: a resumed env draws its first observations' noise anew."""
+    if "observation_noise" in registry.get_task(task).config_class.model_fields:
+        overrides = ["env.observation_noise=false", *overrides]
+    env, twin = task_env(task, overrides, seed=1), task_env(task, overrides, seed=2)
+    try:
+        env.reset(seed=1)
+        actions = _task_actions(env, 2 * TASK_STEPS, seed=5)
+        _rollout(env, actions[:TASK_STEPS])
+        twin.resume_from(env.get_state())
+        twin.reset()
+        _assert_same_outputs(task, "a resumed env", _rollout(env, actions[TASK_STEPS:]),
+                             _rollout(twin, actions[TASK_STEPS:]))
+    finally:
+        env.close(), twin.close()
+
+
+def _assert_same_outputs(task: str, what: str, expected: list, got: list) -> None:
+    names = ("observations", "rewards", "terminated", "truncated")
+    for step, (want, have) in enumerate(zip(expected, got, strict=True), start=1):
+        for name, a, b in zip(names, want, have, strict=True):
+            assert torch.equal(a, b), (f"task {task!r}: {what} differs at step {step} in its "
+                                       f"{name}")
+
+
+def check_task(task: str, overrides: Sequence[str] = ()) -> None:
+    """Every task check above: what a task plugin must pass to train with every framework."""
+    check_task_outputs(task, overrides)
+    check_task_episodes(task, overrides)
+    check_task_determinism(task, overrides)
+    check_task_resume(task, overrides)

@@ -71,6 +71,10 @@ def example(example_site) -> Iterator[None]:
         yield
 
 
+def test_the_example_task_passes_the_task_checks(example):
+    testing.check_task(EXAMPLE_TASK)
+
+
 def test_example_is_listed_with_its_distribution_and_version(example, monkeypatch):
     reg = registry.loaded()
     assert reg.provider("task", EXAMPLE_TASK) == Provider(EXAMPLE_PLUGIN, EXAMPLE_DIST,

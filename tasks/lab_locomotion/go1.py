@@ -8,11 +8,13 @@ leaves out, and so does this file: the servo's damping is the joint's. The stand
 Menagerie's `home` keyframe.
 """
 
-from lab_locomotion.go1_datasheet import ROTOR_INERTIA  # Unitree's, as the datasheet model's
 from labcli.envs.mdp.description import Actuators, RobotDescription
 from labcli.envs.spec import Menagerie
 
 MODEL = Menagerie("unitree_go1", "scene")
+# Unitree's URDF (go1_description): Ixx of the motor's rotor, kg m^2. Not imported from
+# go1_datasheet.py, whose MJCF writer imports MuJoCo: registering the tasks must not.
+ROTOR_INERTIA = 1.11842e-4
 
 ROBOT = RobotDescription(
     natural_frequency_hz=10.0,

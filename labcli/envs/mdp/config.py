@@ -106,6 +106,8 @@ class ObsTerm(RangeChecked):
 
 
 class BaseHeight(ObsTerm):
+    """The root's height (m) above the ground under it: the terrain's surface, else z = 0."""
+
     impl: ClassVar[str] = "labcli.envs.mdp.observations:base_height"
     unit: ClassVar[str] = "m, the root above the ground under it"
 
@@ -125,11 +127,15 @@ class BaseAngVel(ObsTerm):
 
 
 class ProjectedGravity(ObsTerm):
+    """Gravity's direction (a unit vector) in the root's frame: (0, 0, -1) when upright."""
+
     impl: ClassVar[str] = "labcli.envs.mdp.observations:projected_gravity"
     unit: ClassVar[str] = "gravity's unit vector, root frame"
 
 
 class BaseYawRoll(ObsTerm):
+    """The root's yaw and roll (rad)."""
+
     impl: ClassVar[str] = "labcli.envs.mdp.observations:base_yaw_roll"
     unit: ClassVar[str] = "rad"
 
@@ -145,16 +151,22 @@ class TargetObs(Target, ObsTerm):
 
 
 class AngleToTarget(TargetObs):
+    """The horizontal angle (rad, in (-pi, pi]) from the root's heading to the target."""
+
     impl: ClassVar[str] = "labcli.envs.mdp.observations:base_angle_to_target"
     unit: ClassVar[str] = "rad to the target, wrapped to [-pi, pi)"
 
 
 class UpProj(ObsTerm):
+    """The root's up (z) axis projected on the world's: 1 upright, 0 on its side."""
+
     impl: ClassVar[str] = "labcli.envs.mdp.observations:base_up_proj"
     unit: ClassVar[str] = "cosine of the root's tilt"
 
 
 class HeadingProj(TargetObs):
+    """The root's forward (x) axis projected on the horizontal direction to the target."""
+
     impl: ClassVar[str] = "labcli.envs.mdp.observations:base_heading_proj"
     unit: ClassVar[str] = "cosine of the angle from the root's x axis to the target"
 
@@ -190,6 +202,8 @@ class JointPosNormalized(ObsTerm):
 
 
 class JointVel(ObsTerm):
+    """Joint velocities (rad/s or m/s)."""
+
     impl: ClassVar[str] = "labcli.envs.mdp.observations:joint_vel_rel"
     unit: ClassVar[str] = "rad/s (m/s for a slide joint)"
 
@@ -201,6 +215,8 @@ class GeneratedCommands(CommandRef, ObsTerm):
 
 
 class LastAction(ObsTerm):
+    """The action of the last step, as the policy sent it (before scaling)."""
+
     impl: ClassVar[str] = "labcli.envs.mdp.observations:last_action"
     unit: ClassVar[str] = "the policy's last action"
 
@@ -231,6 +247,8 @@ class RewardTerm(Term):
 
 
 class Alive(RewardTerm):
+    """1 every step, a terminating one included."""
+
     impl: ClassVar[str] = "labcli.envs.mdp.rewards:is_alive"
 
 
@@ -256,10 +274,14 @@ class MoveToTarget(Target, RewardTerm):
 
 
 class ActionL2(RewardTerm):
+    """The squared norm of the action."""
+
     impl: ClassVar[str] = "labcli.envs.mdp.rewards:action_l2"
 
 
 class ActionRateL2(RewardTerm):
+    """The squared norm of the action's change since the last step."""
+
     impl: ClassVar[str] = "labcli.envs.mdp.rewards:action_rate_l2"
 
 
@@ -310,10 +332,14 @@ class FlatOrientationL2(RewardTerm):
 
 
 class LinVelZL2(RewardTerm):
+    """The root's vertical velocity squared, in its own frame ((m/s)^2)."""
+
     impl: ClassVar[str] = "labcli.envs.mdp.rewards:lin_vel_z_l2"
 
 
 class AngVelXYL2(RewardTerm):
+    """The root's roll and pitch rates squared, summed, in its own frame ((rad/s)^2)."""
+
     impl: ClassVar[str] = "labcli.envs.mdp.rewards:ang_vel_xy_l2"
 
 
@@ -529,6 +555,8 @@ class TerrainOutOfBounds(TerminationTerm):
 
 
 class BaseHeightBelow(TerminationTerm):
+    """The root below `minimum_height` (m) above the ground under it."""
+
     impl: ClassVar[str] = "labcli.envs.mdp.terminations:root_height_below_minimum"
     minimum_height: float
 
