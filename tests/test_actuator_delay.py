@@ -108,7 +108,8 @@ def test_play_tests_a_policy_under_a_latency_and_the_export_states_its_own(tmp_p
     env = {"LAB_LOGS_DIR": str(tmp_path), "COLUMNS": "300"}
     trained = runner.invoke(app, ["train", "--task", "go1-flat", "--framework", "rsl_rl",
                                   "--num-envs", "8", "--max-iterations", "1",
-                                  "--set", "env.actions.delay=[2,6]"], env=env)
+                                  "--set", "env.actions.delay=[2,6]",
+                                  "--set", "env.episode_length_s=1"], env=env)
     assert trained.exit_code == 0, trained.output
     played = runner.invoke(app, ["play", "--last", "--episodes", "2", "--num-envs", "2",
                                  "--set", "env.actions.delay=[0,12]"], env=env)
