@@ -35,14 +35,9 @@ COMMAND_MODULE = "labcli.envs.mdp.commands"
 def _terms() -> list[type[c.Term]]:
     """Every term class with code of its own, in the order config.py defines them."""
     found = [cls for _, cls in inspect.getmembers(c, inspect.isclass)
-             if issubclass(cls, c.Term) and "impl" in _own_or_inherited(cls)
+             if issubclass(cls, c.Term) and isinstance(getattr(cls, "impl", None), str)
              and cls.__module__ == c.__name__]
     return sorted(found, key=lambda cls: inspect.getsourcelines(cls)[1])
-
-
-def _own_or_inherited(cls: type) -> set[str]:
-    return {name for klass in cls.__mro__ for name in vars(klass)
-            if name == "impl" and isinstance(vars(klass)[name], str)}
 
 
 def kind_of(cls: type[c.Term]) -> str:
