@@ -57,5 +57,5 @@ def test_the_example_s_defaults_for_cartpole_apply(example):
                                   "src/lab_example_ppo/adapter.py",
                                   "src/lab_example_ppo/framework.py"])
 def test_docs_show_the_example_files_as_they_are(path):
-    docs = (Path(__file__).parents[1] / "docs" / "plugins.md").read_text()
-    assert (EXAMPLE / path).read_text().rstrip("\n") in docs, f"docs/plugins.md lacks {path}"
+    docs = (Path(__file__).parents[1] / "docs" / "frameworks.md").read_text()
+    assert (EXAMPLE / path).read_text().rstrip("\n") in docs, f"docs/frameworks.md lacks {path}"
