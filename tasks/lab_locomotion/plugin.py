@@ -2,6 +2,7 @@
 use."""
 
 from pathlib import Path
+from types import ModuleType
 
 from lab_locomotion import g1, go1, go2
 from labcli.envs.spec import TaskSpec
@@ -56,6 +57,8 @@ def _defaults(num_envs: int, max_iterations: int) -> dict:
 SUCCESS = "8 m or more toward the target by the 16 s time-out"
 QUADRUPED_SUCCESS = ("at the 20 s time-out, mean tracking errors under 0.25 m/s (xy) and "
                      "0.3 rad/s (yaw rate)")
+G1_SUCCESS = ("at the 20 s time-out, not fallen, mean tracking errors of the velocity kept over "
+              "1 s under 0.25 m/s (xy) and 0.15 rad/s (yaw rate)")
 
 
 def _spec(name: str, config: str, description: str, max_iterations: int) -> TaskSpec:
@@ -140,32 +143,33 @@ GO1_ROUGH_ITERATIONS = 2000
 G1_ROUGH_ITERATIONS = 6000
 
 
+def _quadruped_flat(robot: ModuleType) -> TaskSpec:
+    """Isaac Lab's Velocity-Flat-Unitree-<robot> on Menagerie's robot of `robot`'s module
+    (go1.py, go2.py): `<robot>-flat`, its config `<Robot>FlatConfig`."""
+    name = robot.__name__.rpartition(".")[2]
+    return TaskSpec(
+        name=f"{name}-flat", task=TASK,
+        config=f"lab_locomotion.config:{name.capitalize()}FlatConfig", model=robot.MODEL,
+        description=f"Isaac Lab's Velocity-Flat-Unitree-{name.capitalize()}: MuJoCo "
+                    f"Menagerie's Unitree {name.capitalize()} quadruped tracks velocity "
+                    "commands on flat ground",
+        success=QUADRUPED_SUCCESS,
+        framework_defaults=_velocity_defaults(num_envs=256, max_iterations=300))
+
+
 @hookimpl
 def register_tasks(register):
     register(_spec("ant", "AntConfig", "Isaac Lab's Ant: a four-legged ant runs toward a "
                    "target 1 km ahead", max_iterations=150))
     register(_spec("humanoid", "HumanoidConfig", "Isaac Lab's Humanoid: a 17-joint humanoid "
                    "runs toward a target 1 km ahead", max_iterations=1000))
-    register(TaskSpec(
-        name="go1-flat", task=TASK, config="lab_locomotion.config:Go1FlatConfig",
-        model=go1.MODEL,
-        description="Isaac Lab's Velocity-Flat-Unitree-Go1: MuJoCo Menagerie's Unitree Go1 "
-                    "quadruped tracks velocity commands on flat ground",
-        success=QUADRUPED_SUCCESS,
-        framework_defaults=_velocity_defaults(num_envs=256, max_iterations=300)))
-    register(TaskSpec(
-        name="go2-flat", task=TASK, config="lab_locomotion.config:Go2FlatConfig",
-        model=go2.MODEL,
-        description="Isaac Lab's Velocity-Flat-Unitree-Go2: MuJoCo Menagerie's Unitree Go2 "
-                    "quadruped tracks velocity commands on flat ground",
-        success=QUADRUPED_SUCCESS,
-        framework_defaults=_velocity_defaults(num_envs=256, max_iterations=300)))
+    for robot in (go1, go2):
+        register(_quadruped_flat(robot))
     register(TaskSpec(
         name="g1-flat", task=TASK, config="lab_locomotion.config:G1FlatConfig", model=g1.MODEL,
         description="mjlab's Velocity-Flat-Unitree-G1: MuJoCo Menagerie's Unitree G1 humanoid "
                     "(29 DoF) tracks velocity commands on flat ground",
-        success="at the 20 s time-out, not fallen, mean tracking errors of the velocity kept "
-                "over 1 s under 0.25 m/s (xy) and 0.15 rad/s (yaw rate)",
+        success=G1_SUCCESS,
         framework_defaults=_g1_defaults()))
     register(TaskSpec(
         name="go1-rough", task=TASK, config="lab_locomotion.config:Go1RoughConfig",
@@ -180,6 +184,5 @@ def register_tasks(register):
         name="g1-rough", task=TASK, config="lab_locomotion.config:G1RoughConfig", model=g1.MODEL,
         description="mjlab's Velocity-Rough-Unitree-G1: g1-flat on stairs, slopes, rough "
                     "ground and waves, with a height scan and a terrain curriculum",
-        success="at the 20 s time-out, not fallen, mean tracking errors of the velocity kept "
-                "over 1 s under 0.25 m/s (xy) and 0.15 rad/s (yaw rate)",
+        success=G1_SUCCESS,
         framework_defaults=_g1_defaults(G1_ROUGH_ITERATIONS)))
