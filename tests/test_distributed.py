@@ -299,6 +299,7 @@ def test_ctrl_c_checkpoints_every_rank_and_the_run_resumes(tmp_path):
     assert summary["state"] == rundir.FINISHED and summary["iterations"] == stopped + 2
     assert summary["steps"] == (stopped + 2) * STEPS_PER_ENV * 8 * 2
     assert "note:" not in err  # every rank went on with its own episodes
+    assert "Synchronizing" not in out  # RSL-RL's line of each rank, between lab's progress lines
 
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="finds ranks through /proc")

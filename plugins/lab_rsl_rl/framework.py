@@ -131,6 +131,17 @@ class LabRunner(OnPolicyRunner):
         self.cfg["multi_gpu"] = ({"global_rank": rank, "local_rank": self.gpu_local_rank,
                                   "world_size": world_size} if self.is_distributed else None)
 
+    def learn(self, num_learning_iterations: int, init_at_random_ep_len: bool = False) -> None:
+        # RSL-RL's learn broadcasts rank 0's parameters after printing a line on every rank's
+        # stdout, between lab's progress lines: lab broadcasts them itself, without it.
+        distributed, self.is_distributed = self.is_distributed, False
+        if distributed:
+            self.alg.broadcast_parameters()
+        try:
+            super().learn(num_learning_iterations, init_at_random_ep_len)
+        finally:
+            self.is_distributed = distributed
+
     def act(self, obs: torch.Tensor) -> torch.Tensor:
         """The actor's deterministic output, through its own normalizer."""
         with torch.no_grad():

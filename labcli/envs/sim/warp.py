@@ -67,8 +67,10 @@ def constraint_capacity(model: mujoco.MjModel, may_collide: bool) -> dict[str, i
 
 @contextmanager
 def compiling_notice(cache_dir: str) -> Iterator[None]:
-    """A spinner while kernels compile or load (terminal only), and one line after a slow one."""
-    console = Console(stderr=True)
+    """A spinner while kernels compile or load (terminal only), and one line after a slow one.
+    The ranks of a host compile the same kernels at once: its first rank alone says so."""
+    # torchrun's variable, read here: the env layer knows nothing of ranks.
+    console = Console(stderr=True, quiet=os.environ.get("LOCAL_RANK", "0") != "0")
     start = time.perf_counter()
     with console.status(f"compiling MuJoCo Warp kernels (first run only, cached in {cache_dir})"):
         yield
