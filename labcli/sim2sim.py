@@ -54,6 +54,11 @@ class PlainLoop:
         self.root_q = int(self.model.jnt_qposadr[free[0]])
         self.root_v = int(self.model.jnt_dofadr[free[0]])
         self.terms = [self._reader(term) for term in deployment["observations"]]
+        # Per term, its frames (oldest first) where the policy sees more than one; an episode's
+        # first frame stands for those before it. Training's lag is not reproduced: a robot's
+        # sensors bring their own.
+        self.history = [term.get("history_length", 1) for term in deployment["observations"]]
+        self.frames: list[np.ndarray | None] = [None] * len(self.terms)
         self.last_action = np.zeros(len(joints))
 
     def _reader(self, term: dict[str, Any]):
@@ -124,7 +129,13 @@ class PlainLoop:
         return self.root_rotation().T @ velocity[:3], velocity[3:].copy()
 
     def observe(self, command: np.ndarray) -> np.ndarray:
-        return np.concatenate([read(command) for read in self.terms]).astype(np.float32)
+        """The policy's input at this control step (each call is the next step's)."""
+        for i, (read, length) in enumerate(zip(self.terms, self.history, strict=True)):
+            frame = read(command)
+            kept = self.frames[i]
+            self.frames[i] = (np.tile(frame, (length, 1)) if kept is None
+                              else np.vstack([kept[1:], frame]))
+        return np.concatenate([f.ravel() for f in self.frames]).astype(np.float32)
 
     def step(self, command: np.ndarray) -> None:
         """One control step: observe, act, and hold the actuators' targets for `decimation`
@@ -141,6 +152,7 @@ class PlainLoop:
         self.data.qpos[:], self.data.qvel[:] = qpos, qvel
         mujoco.mj_forward(self.model, self.data)
         self.last_action = np.zeros_like(self.last_action)
+        self.frames = [None] * len(self.terms)
 
     def run(self, qpos: np.ndarray, qvel: np.ndarray, commands: np.ndarray, fell) -> Trajectory:
         """An episode from the state (`qpos`, `qvel`) under `commands[t]` at step t, until they

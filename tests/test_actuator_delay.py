@@ -112,7 +112,8 @@ def test_play_tests_a_policy_under_a_latency_and_the_export_states_its_own(tmp_p
                                   "--set", "env.episode_length_s=1"], env=env)
     assert trained.exit_code == 0, trained.output
     played = runner.invoke(app, ["play", "--last", "--episodes", "2", "--num-envs", "2",
-                                 "--set", "env.actions.delay=[0,12]"], env=env)
+                                 "--set", "env.actions.delay=[0,12]",
+                                 "--set", "env.observations.joint_vel.delay=[0,2]"], env=env)
     assert played.exit_code == 0, played.output
     exported = runner.invoke(app, ["export", "onnx", "--last"], env=env)
     assert exported.exit_code == 0, exported.output
@@ -120,4 +121,4 @@ def test_play_tests_a_policy_under_a_latency_and_the_export_states_its_own(tmp_p
     assert json.loads(meta.read_text())["deployment"]["actuator_delay_s"] == [0.01, 0.03]
     wrong = runner.invoke(app, ["play", "--last", "--set", "env.actions.scale=1"], env=env)
     assert wrong.exit_code == 2
-    assert "env.actions.delay" in wrong.output
+    assert "env.actions.delay, env.observations.*.delay" in wrong.output

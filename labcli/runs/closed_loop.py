@@ -103,10 +103,14 @@ def check(*, run_dir: Path | None = None, task: str | None = None,
     except ValueError as exc:
         raise LabError(f"{export}: {exc}", "sim2sim reads the robot terms of velocity "
                        "tasks") from None
-    # The plain loop sends each control at once: lab's side too, whatever latency the policy
-    # was trained under (the export's `actuator_delay_s`).
+    # The plain loop sends each control and reads each sensor at once: lab's side too,
+    # whatever latency the policy was trained under (the export's `actuator_delay_s` and
+    # `training_delay_steps`).
+    unlagged = [f"env.observations.{term['term']}.delay=[0,0]"
+                for term in meta["deployment"]["observations"]
+                if any(term.get("training_delay_steps", ()))]
     loaded = play.load(checkpoint=run.dir / meta["checkpoint"], num_envs=episodes,
-                       overrides=["env.actions.delay=null"])
+                       overrides=["env.actions.delay=null", *unlagged])
     try:
         task = loaded.env.task
         rule = _rule(task)

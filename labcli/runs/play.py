@@ -108,7 +108,7 @@ def _play_settings(spec: Any, overrides: Sequence[str],
     files = [keys for keys, _ in config.named_files(saved)]
     wrong = [f"agent.{k}" for k in layers["agent"]] + [
         "env." + ".".join(map(str, keys)) for keys in _leaves(layers["env"])
-        if keys[0] not in allowed and not any(keys[:len(p)] == p for p in paths)
+        if keys[0] not in allowed and not any(_within(keys, path) for path in paths)
         and not any(keys == named[:len(keys)] for named in files)]
     if wrong:
         settable = [f"env.{k}" for k in sorted(allowed)] + [
@@ -118,6 +118,11 @@ def _play_settings(spec: Any, overrides: Sequence[str],
                        f"a run of task '{spec.name}' may set: "
                        f"{', '.join(dict.fromkeys(settable)) or 'nothing'}")
     return layers["env"]
+
+
+def _within(keys: tuple, path: tuple[str, ...]) -> bool:
+    """Whether `keys` name `path` or a key under it; "*" in `path` stands for any one key."""
+    return len(keys) >= len(path) and all(p in ("*", k) for k, p in zip(keys, path))
 
 
 def _leaves(tree: Mapping[str, Any], keys: tuple = ()) -> list[tuple]:

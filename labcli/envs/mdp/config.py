@@ -94,7 +94,11 @@ class ObsTerm(RangeChecked):
     (with the task's `observation_noise` on: training; `lab play` turns it off unless asked),
     clipped to `clip`, times `scale`. `bias`: also an offset per column held through each
     episode, uniform in (-bias, bias) drawn at its start (an encoder's or an IMU's calibration
-    error; with `observation_noise` too)."""
+    error; with `observation_noise` too). `history_length` k > 1: the policy sees the term's
+    last k frames (each after bias, noise, clip and scale), oldest first, as Isaac Lab's.
+    `delay`: (low, high) control steps by which the term's frames reach the policy late (a
+    sensor's latency), drawn per env at every episode's start, as mjlab's `delay_min_lag` /
+    `delay_max_lag`. An episode's first frame stands for the ones before it."""
 
     # The raw value's unit and convention, per column (before noise, clip and scale), which
     # `lab export` writes for deployers; a term made per column may give `units` instead.
@@ -103,6 +107,22 @@ class ObsTerm(RangeChecked):
     clip: Range | None = None
     noise: float = Field(0.0, ge=0.0)
     bias: float = Field(0.0, ge=0.0)
+    history_length: int = Field(0, ge=0, description="frames of the term the policy sees, "
+                                "oldest first (0 or 1: the current one)")
+    delay: tuple[int, int] = Field((0, 0), description="control steps (low, high) by which "
+                                   "the term's frames lag, drawn per env each episode")
+
+    @model_validator(mode="after")
+    def _delay_not_negative(self) -> ObsTerm:
+        if self.delay[0] < 0:
+            raise ValueError(f"delay is {self.delay} control steps: give (low, high) with "
+                             "0 <= low <= high")
+        return self
+
+    @property
+    def frames(self) -> int:
+        """Frames of the term in the policy's input."""
+        return max(self.history_length, 1)
 
 
 class BaseHeight(ObsTerm):
@@ -798,7 +818,8 @@ class RobotTaskConfig(TaskConfig):
     `reward_weights`."""
 
     play_overrides: ClassVar[dict[str, Any]] = {"observation_noise": False}
-    play_settable: ClassVar[frozenset[str]] = frozenset({"actions.delay"})
+    play_settable: ClassVar[frozenset[str]] = frozenset({"actions.delay",
+                                                         "observations.*.delay"})
 
     robot: RobotDescription | None = Field(None, description="the robot's motors, gains and "
                                            "parts, written into the model; None: the MJCF's own")

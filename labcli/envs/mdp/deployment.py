@@ -1,6 +1,6 @@
 """What a deployer wires around an exported robot policy besides the network, read from the task
 as built: each action's joint, actuator, default position, PD gains, limits, scale and offset;
-each observation term's columns, scale, clip and training noise; each command's fields and
+each observation term's columns, scale, clip, training noise, frames and lag; each command's fields and
 ranges; the motors' latency it was trained under. `lab export` writes it into the policy's
 metadata (and, for ONNX, also under the keys mjlab's exports use).
 """
@@ -72,25 +72,29 @@ def _effort_limit(model: mujoco.MjModel, i: int) -> float | None:
 
 
 def _observations(task: RobotTask) -> list[dict[str, Any]]:
-    """Per term, in input order: the term's columns (the input's names), and what the task did
-    to its raw value, in that order: in training a bias per episode and noise per step (each
-    uniform in ±its value), clip, scale."""
+    """Per term, in input order: the term's columns, the names of one frame's, and what the
+    task did to its raw value, in that order: in training a bias per episode and noise per step
+    (each uniform in ±its value), clip, scale; then its frames, `history_length` of them oldest
+    first (the columns hold them one after another), and in training their lag in control
+    steps, drawn per episode from `training_delay_steps`."""
     rows, start = [], 0
-    names = task.observation_names
-    for built, width in zip(task._obs, task._obs_widths, strict=True):
+    for built, names in zip(task._obs, task._obs_names, strict=True):
         cfg = built.cfg
         function = type(cfg).impl.rsplit(":", 1)[1]
+        width = len(names) * cfg.frames
         rows.append({
             # What it measures (lab's term function: Isaac Lab's names), whatever its name.
             "term": built.name, "kind": function, "columns": [start, start + width],
-            "names": names[start:start + width],
+            "names": names,
             "source": ("command" if function in COMMAND_TERMS else
                        "last action" if function in ACTION_TERMS else "robot"),
             "scale": cfg.scale, "clip": list(cfg.clip) if cfg.clip else None,
             "training_noise": cfg.noise, "training_bias": cfg.bias,
+            "history_length": cfg.frames, "training_delay_steps": list(cfg.delay),
             # The term's own numbers (a height scan's grid and offset), to compute it alike.
             **({"settings": own} if (own := cfg.model_dump(
-                mode="json", exclude={"scale", "clip", "noise", "bias"})) else {})})
+                mode="json", exclude={"scale", "clip", "noise", "bias", "history_length",
+                                      "delay"})) else {})})
         start += width
     return rows
 

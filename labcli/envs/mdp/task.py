@@ -30,7 +30,7 @@ import torch
 
 from labcli import refs
 from labcli.envs import models
-from labcli.envs.mdp import deployment, robot_model, sensors, terrain_model
+from labcli.envs.mdp import deployment, frames, robot_model, sensors, terrain_model
 from labcli.envs.mdp.config import Group, RobotTaskConfig, Term
 from labcli.envs.mdp.robot import Robot
 from labcli.envs.mdp.terrain_grid import TerrainGrid
@@ -172,16 +172,26 @@ class RobotTask(Task):
             raise LabError("the task's config lists no observation terms",
                            "give env.observations at least one term")
         names = [self._names(b) for b in self._obs]
-        self.observation_names = [name for term in names for name in term]
+        self._obs_names = names
+        self.observation_names = [name for built, term in zip(self._obs, names, strict=True)
+                                  for name in frames.column_names(term, built.cfg.frames)]
         self.observation_units = {
             name: unit for built, columns in zip(self._obs, names, strict=True)
-            for name, unit in zip(columns, getattr(built.made, "units", None)
-                                  or [type(built.cfg).unit] * len(columns), strict=True)}
+            for name, unit in zip(frames.column_names(columns, built.cfg.frames),
+                                  (getattr(built.made, "units", None)
+                                   or [type(built.cfg).unit] * len(columns)) * built.cfg.frames,
+                                  strict=True)}
         self._obs_widths = [len(n) for n in names]
-        self._post = ObservationPost(self, [b.cfg for b in self._obs], self._obs_widths)
+        terms = [b.cfg for b in self._obs]
+        self._post = ObservationPost(self, terms, self._obs_widths)
         if self._post.bias is not None:
             self._term_resets.append(self._post.reset)
             self._carriers.append(("observations", self._post))
+        self._frames = (frames.ObservationFrames(self, terms, self._obs_widths)
+                        if any(t.frames > 1 or t.delay[1] > 0 for t in terms) else None)
+        if self._frames is not None:
+            self._term_resets.append(self._frames.reset)
+            self._carriers.append(("observations/frames", self._frames))
 
     # the env's calls ---------------------------------------------------------------------------
     def apply_actions(self, actions: torch.Tensor) -> None:
@@ -191,6 +201,8 @@ class RobotTask(Task):
         self.robot.forget_derived()
         self.previous_action.copy_(self.action)
         self.action.copy_(actions)
+        if self._frames is not None:
+            self._frames.advance()
         for hook in self._pre_physics:
             hook()
         self.actuation(self.action, self.sim.ctrl)
@@ -207,8 +219,9 @@ class RobotTask(Task):
         self.robot.update()
 
     def observations(self) -> torch.Tensor:
-        return self._post(torch.cat([b.compute() for b in self._obs], dim=1,
-                                    out=self._post.raw))
+        frame = self._post(torch.cat([b.compute() for b in self._obs], dim=1,
+                                     out=self._post.raw))
+        return frame if self._frames is None else self._frames(frame)
 
     def reward_terms(self) -> dict[str, torch.Tensor]:
         return {b.name: b.compute() for b in self._rewards}
