@@ -78,6 +78,13 @@ class PlainLoop:
                                for name in term["names"]])
             offset = term["settings"]["offset"]
             raw = lambda command: self._scan(points) - offset  # noqa: E731
+        elif kind == "projected_gravity" and term.get("settings", {}).get("site"):
+            # An IMU's site on the root: its frame turned by the site's rotation in the root.
+            # (data.site_xmat after mj_step holds the pose before its last integration.)
+            turned = np.zeros(9)
+            mujoco.mju_quat2Mat(turned, self.model.site(term["settings"]["site"]).quat)
+            imu = turned.reshape(3, 3)
+            raw = lambda command: imu.T @ self.root_rotation().T @ GRAVITY  # noqa: E731
         else:
             raw = {"base_lin_vel": lambda command: self.root_rotation().T @ self._root_vel()[:3],
                    "base_ang_vel": lambda command: self._root_vel()[3:],

@@ -89,6 +89,9 @@ class CommandRef(Term):
 
 
 # observations ---------------------------------------------------------------------------------
+MOUNTING_KEYS = ("roll", "pitch", "yaw")
+
+
 class ObsTerm(RangeChecked):
     """An observation term, as Isaac Lab's: its value plus uniform noise in (-noise, noise)
     (with the task's `observation_noise` on: training; `lab play` turns it off unless asked),
@@ -147,10 +150,24 @@ class BaseAngVel(ObsTerm):
 
 
 class ProjectedGravity(ObsTerm):
-    """Gravity's direction (a unit vector) in the root's frame: (0, 0, -1) when upright."""
+    """Gravity's direction (a unit vector) in the root's frame: (0, 0, -1) when upright. With
+    `site`, in the frame of that site of the root body instead: an IMU's (Menagerie's Go1
+    `imu`, G1 `imu_in_pelvis`). `mounting_range`: the IMU mounted turned by a roll, pitch and
+    yaw (rad) drawn per env at every episode's start, uniform in each key's range."""
 
     impl: ClassVar[str] = "labcli.envs.mdp.observations:projected_gravity"
-    unit: ClassVar[str] = "gravity's unit vector, root frame"
+    unit: ClassVar[str] = "gravity's unit vector, root frame (with a site: the site's)"
+    site: str | None = Field(None, description="an IMU site: gravity in its frame")
+    mounting_range: dict[str, Range] = Field(
+        default_factory=dict, description="roll, pitch, yaw (rad) of the IMU's mounting")
+
+    @model_validator(mode="after")
+    def _mounting_keys(self) -> ProjectedGravity:
+        unknown = set(self.mounting_range) - set(MOUNTING_KEYS)
+        if unknown:
+            raise ValueError(f"mounting_range has {', '.join(sorted(unknown))}: its keys are "
+                             f"{', '.join(MOUNTING_KEYS)}")
+        return self
 
 
 class BaseYawRoll(ObsTerm):

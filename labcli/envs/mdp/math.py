@@ -45,6 +45,14 @@ def quat_mul(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
                         aw * bz + ax * by - ay * bx + az * bw), dim=1)
 
 
+def quat_apply_inverse(quat: torch.Tensor, vec: torch.Tensor) -> torch.Tensor:
+    """Vectors `[n, 3]` turned by the inverse of unit quaternions `[n, 4]`: a world (or parent)
+    frame's vector in the quaternion's frame."""
+    xyz = quat[:, 1:]
+    t = torch.linalg.cross(xyz, vec).mul_(2.0)
+    return vec - quat[:, :1] * t + torch.linalg.cross(xyz, t)
+
+
 def yaw_of(quat: torch.Tensor) -> torch.Tensor:
     """The heading (rad) of unit quaternions `[n, 4]`: atan2(R10, R00), as `Robot.yaw`."""
     w, x, y, z = quat.unbind(1)

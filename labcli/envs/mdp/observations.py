@@ -9,7 +9,7 @@ import mujoco
 import torch
 
 from labcli.envs.mdp import config as c
-from labcli.envs.mdp import math, sensors
+from labcli.envs.mdp import events, math, names, sensors
 from labcli.errors import LabError
 
 if TYPE_CHECKING:
@@ -28,8 +28,40 @@ def base_ang_vel(task: RobotTask, cfg: c.BaseAngVel) -> torch.Tensor:
     return task.robot.root_ang_vel_b
 
 
-def projected_gravity(task: RobotTask, cfg: c.ProjectedGravity) -> torch.Tensor:
-    return task.robot.projected_gravity_b
+class projected_gravity:  # noqa: N801 - a term, named as Isaac Lab's
+    """Gravity in the root's frame, or in the frame of a site fixed to the root (an IMU's,
+    turned by the site's own rotation in the root), then into each env's IMU mounting, drawn
+    at its episodes' start (only where a range is set). Computed from the root's state, not
+    read from sensors, which hold the state before a step's last physics step."""
+
+    carried = ("frame",)
+
+    def __init__(self, task: RobotTask, cfg: c.ProjectedGravity):
+        self.robot = task.robot
+        site = [1.0, 0.0, 0.0, 0.0]
+        if cfg.site is not None:
+            model = task.model
+            sid = names.resolve_one(model, "site", cfg.site)
+            if model.site_bodyid[sid] != task.robot.root_body:
+                root = names.all_names(model, "body")[task.robot.root_body]
+                raise LabError(f"IMU site '{cfg.site}' is not on the root body '{root}'",
+                               "name a site of the root body (or none: the root's frame)")
+            site = model.site_quat[sid].tolist()
+        ranges = [cfg.mounting_range.get(k, (0.0, 0.0)) for k in c.MOUNTING_KEYS]
+        self.draw = events.Uniform(task, ranges) if any(lo or hi for lo, hi in ranges) else None
+        self.site = task.tiled(site)
+        # Per env, the IMU's frame in the root's: the site's rotation, then the mounting's.
+        self.frame = self.site.clone()
+        self.turned = cfg.site is not None or self.draw is not None
+
+    def reset(self, mask: torch.Tensor) -> None:
+        if self.draw is not None:
+            frame = math.quat_mul(self.site, math.quat_from_rpy(*self.draw().unbind(1)))
+            torch.where(mask[:, None], frame, self.frame, out=self.frame)
+
+    def __call__(self) -> torch.Tensor:
+        gravity = self.robot.projected_gravity_b
+        return math.quat_apply_inverse(self.frame, gravity) if self.turned else gravity
 
 
 def base_yaw_roll(task: RobotTask, cfg: c.BaseYawRoll) -> torch.Tensor:
