@@ -1,0 +1,132 @@
+"""Robot tasks trained on the CPU with default flags: seconds to success, seed by seed, beside
+the time each task should take on a 2-core laptop.
+
+  python bench/bench_cpu_success.py [--tasks ant,humanoid] [--framework rsl_rl]
+                                    [--seeds 0,1,2] [--success 0.9] [--json FILE]
+
+Each run is `lab train --task T --framework F --seed S --backend cpu` as a user runs it (by
+this Python's `-m labcli`), in a throwaway logs dir, one after another; it is stopped (Ctrl-C,
+a checkpoint) once its training has lasted twice the task's goal, else it ends by itself. From its TensorBoard events: the
+seconds of training (from the run's first event, after start-up) and steps until the logged
+success rate first reached --success, the median steps/s, and the final success rate; then,
+per task, the median over the seeds against the goal (a run that never got there counts as
+never, and a median of nevers is never).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import shlex
+import signal
+import statistics
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_scale import median_after_two, scalars  # noqa: E402
+
+from labcli.envs import metrics  # noqa: E402
+from labcli.runs.bench import time_to_success  # noqa: E402
+
+# Seconds of training to success on a 2-core machine that a robot task should take at its
+# defaults: ant and humanoid as Isaac Lab's classic tasks, the robots as a laptop allows.
+GOALS_S = {"ant": 180, "humanoid": 900, "go1-flat": 1200, "g1-flat": 2700}
+# Start-up (imports, the model, the first event) is not training: it gets this much on top.
+START_S = 60
+
+
+def train(task: str, framework: str, seed: int, success: float) -> dict:
+    cmd = [sys.executable, "-m", "labcli", "train", "--task", task, "--framework", framework,
+           "--seed", str(seed), "--backend", "cpu"]
+    limit = 2 * GOALS_S.get(task, 600) + START_S
+    with tempfile.TemporaryDirectory(prefix="bench_cpu_success_") as logs:
+        proc = subprocess.Popen(cmd, env={**os.environ, "LAB_LOGS_DIR": logs},
+                                stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+        try:
+            _, err = proc.communicate(timeout=limit)
+        except subprocess.TimeoutExpired:
+            proc.send_signal(signal.SIGINT)  # as Ctrl-C: the run checkpoints and stops
+            _, err = proc.communicate()
+        if proc.returncode not in (0, 130):
+            print(f"{shlex.join(cmd)}: exit {proc.returncode}\n{err[-3000:]}", flush=True)
+            return {"task": task, "seed": seed, "exit": proc.returncode}
+        (run_dir,) = Path(logs, framework, task).iterdir()
+        summary = json.loads((run_dir / "summary.json").read_text())
+        reached = time_to_success(run_dir, success)
+        row = {
+            "task": task, "framework": framework, "seed": seed, "state": summary["state"],
+            "training_s": summary["wall_time_s"], "steps": summary["steps"],
+            "final_success": summary["success_rate"],
+            "steps_per_s": median_after_two(scalars(run_dir, metrics.STEPS_PER_S)),
+            "success_s": reached[0] if reached else None,
+            "success_steps": reached[1] if reached else None,
+        }
+    print(json.dumps(row), flush=True)
+    return row
+
+
+def median_seconds(rows: list[dict]) -> float | None:
+    """The median of the seeds' seconds to success, a run that never got there as infinite."""
+    times = [row.get("success_s") or float("inf") for row in rows]
+    median = statistics.median(times)
+    return None if median == float("inf") else median
+
+
+def report(rows: list[dict], success: float) -> None:
+    print(f"\n| task | seed | steps/s | success {success} after | steps to it | training s | "
+          "final success |")
+    print("| --- | ---: | ---: | ---: | ---: | ---: | ---: |")
+    for row in rows:
+        if "exit" in row:
+            print(f"| {row['task']} | {row['seed']} | exit {row['exit']} |  |  |  |  |")
+            continue
+        seconds = f"{row['success_s']:.0f} s" if row["success_s"] is not None else "never"
+        steps = f"{row['success_steps']:,}" if row["success_steps"] is not None else "-"
+        print(f"| {row['task']} | {row['seed']} | {row['steps_per_s']:,.0f} | {seconds} | "
+              f"{steps} | {row['training_s']:.0f} ({row['state']}) | "
+              f"{row['final_success']:.2f} |")
+    print("\n| task | median over seeds | goal | met |")
+    print("| --- | ---: | ---: | :-: |")
+    for task in dict.fromkeys(row["task"] for row in rows):
+        median = median_seconds([r for r in rows if r["task"] == task and "exit" not in r])
+        goal = GOALS_S.get(task)
+        shown = f"{median:.0f} s" if median is not None else "never"
+        met = "yes" if median is not None and goal and median <= goal else "no"
+        print(f"| {task} | {shown} | {goal or '-'} s | {met} |")
+
+
+def machine() -> str:
+    import importlib.metadata as md
+
+    import torch
+
+    names = ("mujoco", "rsl-rl-lib", "skrl", "stable-baselines3", "rl-games")
+    found = ", ".join(f"{n} {md.version(n)}" for n in names)
+    return (f"{os.cpu_count()} cores ({platform.processor() or platform.machine()}); Python "
+            f"{platform.python_version()}, torch {torch.__version__}, {found}")
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--tasks", default="ant,humanoid")
+    p.add_argument("--framework", default="rsl_rl")
+    p.add_argument("--seeds", default="0,1,2")
+    p.add_argument("--success", type=float, default=0.9)
+    p.add_argument("--json", type=Path, help="write the rows here")
+    a = p.parse_args()
+    print(machine(), flush=True)
+    rows = [train(task, a.framework, int(seed), a.success)
+            for task in a.tasks.split(",") for seed in a.seeds.split(",")]
+    report(rows, a.success)
+    if a.json:
+        a.json.write_text(json.dumps({"machine": machine(), "rows": rows}, indent=1))
+    sys.exit(any("exit" in row for row in rows))
+
+
+if __name__ == "__main__":
+    main()
