@@ -578,6 +578,27 @@ def test_a_checkpoint_deleted_while_it_is_written_is_said_as_a_deleted_run(tmp_p
     assert list(run_dir.iterdir()) == []
 
 
+def test_a_checkpoint_emptied_while_it_is_published_is_said_as_a_deleted_run(tmp_path,
+                                                                          monkeypatch):
+    """The race of the test above at its end: rm empties the staging directory after lab
+    listed its files, which it then finds gone."""
+    run_dir = tmp_path / "run"
+    run_dir.mkdir()
+    fsync = files.fsync_file
+
+    def fsync_then_rm_the_others(path):
+        fsync(path)
+        for other in path.parent.iterdir():
+            if other != path:
+                other.unlink()
+
+    monkeypatch.setattr(files, "fsync_file", fsync_then_rm_the_others)
+    with pytest.raises(LabError, match="no longer exists: it was deleted or moved"):
+        checkpoints.write(run_dir, registry.get_framework("rsl_rl"), 1,
+                          lambda path: path.write_bytes(b"model"),
+                          lambda staging: (staging / "env_state").write_bytes(b"state"))
+
+
 @pytest.mark.parametrize("framework", ["rsl_rl", "sb3", "skrl"])
 def test_a_run_dir_deleted_just_before_the_library_saves_stays_deleted(
         tmp_path, monkeypatch, framework):

@@ -10,6 +10,7 @@ Runs written before manifests existed are judged by their zip checksums."""
 
 from __future__ import annotations
 
+import errno
 import hashlib
 import json
 import os
@@ -97,6 +98,8 @@ def _publish(staging: Path, directory: Path, iteration: int, framework: str,
              figures: dict[str, float] | None) -> None:
     entries = {}
     for path in sorted(staging.iterdir()):
+        if not path.is_symlink() and not path.exists():  # listed, then removed under lab
+            raise FileNotFoundError(errno.ENOENT, os.strerror(errno.ENOENT), str(path))
         if path.is_symlink() or not path.is_file():
             raise RuntimeError(f"a checkpoint holds only files, not {path.name}")
         files.fsync_file(path)
