@@ -6,11 +6,11 @@ the time each task should take on a 2-core laptop.
 
 Each run is `lab train --task T --framework F --seed S --backend cpu` as a user runs it (by
 this Python's `-m labcli`), in a throwaway logs dir, one after another; it is stopped (Ctrl-C,
-a checkpoint) once its training has lasted twice the task's goal, else it ends by itself. From its TensorBoard events: the
-seconds of training (from the run's first event, after start-up) and steps until the logged
-success rate first reached --success, the median steps/s, and the final success rate; then,
-per task, the median over the seeds against the goal (a run that never got there counts as
-never, and a median of nevers is never).
+a checkpoint) once its training has lasted twice the task's goal, else it ends by itself.
+From its TensorBoard events: the seconds of training (from the run's first event, after
+start-up) and steps until the logged success rate first reached --success, the median
+steps/s, and the final success rate; then, per task, the median over the seeds against the
+goal (a run that never got there counts as never, and a median of nevers is never).
 """
 
 from __future__ import annotations

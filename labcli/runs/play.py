@@ -122,7 +122,8 @@ def _play_settings(spec: Any, overrides: Sequence[str],
 
 def _within(keys: tuple, path: tuple[str, ...]) -> bool:
     """Whether `keys` name `path` or a key under it; "*" in `path` stands for any one key."""
-    return len(keys) >= len(path) and all(p in ("*", k) for k, p in zip(keys, path))
+    return len(keys) >= len(path) and all(p in ("*", k) for k, p in zip(keys[:len(path)], path,
+                                                                       strict=True))
 
 
 def _leaves(tree: Mapping[str, Any], keys: tuple = ()) -> list[tuple]:

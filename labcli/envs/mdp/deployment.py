@@ -1,8 +1,8 @@
 """What a deployer wires around an exported robot policy besides the network, read from the task
 as built: each action's joint, actuator, default position, PD gains, limits, scale and offset;
-each observation term's columns, scale, clip, training noise, frames and lag; each command's fields and
-ranges; the motors' latency it was trained under. `lab export` writes it into the policy's
-metadata (and, for ONNX, also under the keys mjlab's exports use).
+each observation term's columns, scale, clip, training noise, frames and lag; each command's
+fields and ranges; the motors' latency it was trained under. `lab export` writes it into the
+policy's metadata (and, for ONNX, also under the keys mjlab's exports use).
 """
 
 from __future__ import annotations
