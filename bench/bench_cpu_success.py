@@ -28,7 +28,7 @@ import tempfile
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_scale import median_after_two, scalars  # noqa: E402
+from bench_scale import conclude, median_after_two, scalars  # noqa: E402
 
 from labcli.envs import metrics  # noqa: E402
 from labcli.runs.bench import time_to_success  # noqa: E402
@@ -119,13 +119,12 @@ def main() -> None:
     p.add_argument("--success", type=float, default=0.9)
     p.add_argument("--json", type=Path, help="write the rows here")
     a = p.parse_args()
-    print(machine(), flush=True)
+    about = machine()
+    print(about, flush=True)
     rows = [train(task, a.framework, int(seed), a.success)
             for task in a.tasks.split(",") for seed in a.seeds.split(",")]
     report(rows, a.success)
-    if a.json:
-        a.json.write_text(json.dumps({"machine": machine(), "rows": rows}, indent=1))
-    sys.exit(any("exit" in row for row in rows))
+    conclude(rows, {"machine": about}, a.json)
 
 
 if __name__ == "__main__":

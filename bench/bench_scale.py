@@ -108,6 +108,13 @@ def versions() -> str:
     return f"{len(gpus)}× {gpus[0] if gpus else 'no GPU'}; torch {torch.__version__}, {found}"
 
 
+def conclude(rows: list[dict], about: dict[str, str], path: Path | None) -> None:
+    """Write `rows` and what they ran on (`about`) to `path`, if given; exit 1 if a run failed."""
+    if path:
+        path.write_text(json.dumps({**about, "rows": rows}, indent=1))
+    sys.exit(any("exit" in row for row in rows))
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("runs", nargs="+", metavar="RUN")
@@ -116,13 +123,12 @@ def main() -> None:
     p.add_argument("--success", type=float, default=0.9)
     p.add_argument("--json", type=Path, help="write the rows here")
     a = p.parse_args()
-    print(versions(), flush=True)
+    about = versions()
+    print(about, flush=True)
     rows = [train(a.task, framework, run, a.success)
             for framework in a.frameworks.split(",") for run in a.runs]
     report(rows, a.success)
-    if a.json:
-        a.json.write_text(json.dumps({"versions": versions(), "rows": rows}, indent=1))
-    sys.exit(any("exit" in row for row in rows))
+    conclude(rows, {"versions": about}, a.json)
 
 
 if __name__ == "__main__":
