@@ -63,6 +63,17 @@ def deleted(path: Path) -> LabError:
                     "nothing more was written")
 
 
+def deletion(exc: BaseException, root: Path) -> LabError | None:
+    """The one-line error for `exc` when it is a library's own write into `root` (TensorBoard's
+    event file, written by SB3's logger) that found its directory deleted under lab; None for
+    any other error."""
+    filename = getattr(exc, "filename", None)
+    if not isinstance(exc, FileNotFoundError) or filename is None:
+        return None
+    path = Path(os.fsdecode(filename))
+    return deleted(vanished(path, root)) if path.is_relative_to(root) else None
+
+
 def vanished(path: Path, root: Path) -> Path:
     """The outermost directory from `root` down to `path`'s that no longer exists (`path`'s own
     directory when all still do): what a deletion under lab took away. `rm -rf` of a run dir

@@ -552,6 +552,25 @@ def test_a_run_dir_deleted_while_training_ends_it_in_one_line_and_stays_deleted(
     assert "no longer exists" in err and not run_dir.exists()
 
 
+def test_a_run_dir_deleted_before_sb3_logs_its_figures_is_said_as_a_deleted_run(tmp_path,
+                                                                             monkeypatch):
+    """The race the deleted-run test met with sb3: SB3's own TensorBoard writer, not lab's
+    checkpoint, was the first to find the run dir gone (its thread's error, re-raised by the
+    writer's next call)."""
+    from stable_baselines3.common.logger import TensorBoardOutputFormat
+
+    write = TensorBoardOutputFormat.write
+
+    def deleted_first(self, *args, **kwargs):
+        shutil.rmtree(Path(self.writer.log_dir))
+        write(self, *args, **kwargs)
+        self.writer.flush()  # waits for the writer's thread and raises what it met
+
+    monkeypatch.setattr(TensorBoardOutputFormat, "write", deleted_first)
+    with pytest.raises(LabError, match="no longer exists: it was deleted or moved"):
+        testing.train_small("sb3", tmp_path, 3, testing.SMALL_AGENTS["sb3"])
+
+
 @pytest.mark.parametrize("when", ["after the model", "before the model", "while checked"])
 def test_a_checkpoint_deleted_while_it_is_written_is_said_as_a_deleted_run(tmp_path, when):
     # The races the test above can hit: rm has emptied the staging directory, not yet the run

@@ -373,9 +373,12 @@ def _run_training(fw: Framework, env: Any, cfg: AgentConfig, run: rundir.Run,
     except LabError as exc:  # diverged (exit 3), or the run dir cannot be written any more
         error = exc
     except Exception as exc:
-        # A library fails on NaN weights mid-update (e.g. sampling with a NaN std); any other
-        # failure is a bug and keeps its traceback.
-        if ranks.active and distributed.lost_peer(exc):
+        # A library's own writer finds the run dir deleted under lab, or a library fails on NaN
+        # weights mid-update (e.g. sampling with a NaN std); any other failure is a bug and
+        # keeps its traceback.
+        if (deleted := files.deletion(exc, run.dir)) is not None:
+            error = deleted
+        elif ranks.active and distributed.lost_peer(exc):
             error = distributed.lost(ranks, exc, ctx.iteration)
         elif ctx.networks_finite():
             raise
