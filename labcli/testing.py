@@ -49,6 +49,11 @@ SMALL_AGENTS = {
                "agent.critic_hidden_dims=[16]"],
     "skrl": ["agent.rollouts=8", "agent.learning_epochs=2", "agent.mini_batches=2",
              "agent.hidden_sizes=[16]"],
+    # Updates from the fifth step on, so that every check's first iteration has some.
+    "skrl_sac": ["agent.rollouts=8", "agent.batch_size=16", "agent.learning_starts=4",
+                 "agent.buffer_size=256", "agent.hidden_sizes=[16]"],
+    "skrl_td3": ["agent.rollouts=8", "agent.batch_size=16", "agent.learning_starts=4",
+                 "agent.buffer_size=256", "agent.hidden_sizes=[16]"],
     "rl_games": ["agent.horizon_length=8", "agent.mini_epochs=2",
                  "agent.minibatch_size_per_env=4", "agent.units=[16]"],
 }

@@ -69,7 +69,8 @@ def fresh_copy(run_dir: Path, tmp_path: Path) -> tuple[Path, Path]:
 
 # Resume: all or nothing -----------------------------------------------------------------------
 REFUSED = {"sb3": "agent.net_arch=[8]", "rsl_rl": "agent.actor_hidden_dims=[8]",
-           "skrl": "agent.hidden_sizes=[8]", "rl_games": "agent.units=[8]"}
+           "skrl": "agent.hidden_sizes=[8]", "skrl_sac": "agent.hidden_sizes=[8]",
+           "skrl_td3": "agent.hidden_sizes=[8]", "rl_games": "agent.units=[8]"}
 
 
 @pytest.mark.parametrize("framework", FRAMEWORKS)
@@ -92,6 +93,7 @@ def saved_learning_rate(framework: str, checkpoint: Path) -> float:
             state = torch.load(f, weights_only=True)
     else:
         key = {"rsl_rl": "optimizer_state_dict", "skrl": "optimizer",
+               "skrl_sac": "policy_optimizer", "skrl_td3": "policy_optimizer",
                "rl_games": "optimizer"}[framework]
         state = torch.load(checkpoint, weights_only=True)[key]
     return state["param_groups"][0]["lr"]

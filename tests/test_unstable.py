@@ -59,6 +59,9 @@ UPDATES = {
     "sb3": ("stable_baselines3.ppo.ppo", "PPO", "train"),
     "rsl_rl": ("rsl_rl.algorithms.ppo", "PPO", "update"),
     "skrl": ("skrl.agents.torch.ppo.ppo", "PPO", "update"),
+    # An iteration's updates, one after each of its steps' transitions.
+    "skrl_sac": ("lab_skrl.offpolicy", "OffPolicy", "learn"),
+    "skrl_td3": ("lab_skrl.offpolicy", "OffPolicy", "learn"),
     # rl_games' rollout and update are one call; the rollout steps no optimizer.
     "rl_games": ("rl_games.common.a2c_common", "ContinuousA2CBase", "train_epoch"),
 }
@@ -98,7 +101,8 @@ def poison_update(monkeypatch, name: str, on_call: int) -> None:
         finally:
             monkeypatch.setattr(torch.optim.Adam, "step", step)
         # ... and after it, for a library whose optimizer steps another way (skrl).
-        fill_nan(getattr(self, "optimizer", None) or self.policy.optimizer)
+        fill_nan(getattr(self, "optimizer", None) or getattr(self, "policy_optimizer", None)
+                 or self.policy.optimizer)
         return out
 
     monkeypatch.setattr(owner, method, update)

@@ -1,9 +1,10 @@
-"""PPO from skrl behind lab's Framework API.
+"""PPO, SAC and TD3 from skrl behind lab's Framework API.
 
-lab drives the loop itself (what skrl's SequentialTrainer does, one rollout + update per
-iteration) so that it can report each iteration, checkpoint through lab and stop on Ctrl-C.
-A checkpoint is skrl's own agent checkpoint (a dict of state dicts: policy, value, optimizer,
-preprocessors) plus a `lab` entry with the sizes and network shape needed to rebuild the policy.
+lab drives the loop itself (what skrl's SequentialTrainer does: `rollouts` steps an iteration,
+then the update) so that it can report each iteration, checkpoint through lab and stop on
+Ctrl-C. A checkpoint is skrl's own agent checkpoint (a dict of state dicts: policy, value or
+critics, optimizers, preprocessors) plus a `lab` entry with the sizes and network shape needed
+to rebuild the policy; SAC's and TD3's replay memory is a file beside it.
 """
 
 from __future__ import annotations
@@ -16,13 +17,15 @@ import torch
 from skrl.agents.torch import ExperimentCfg
 from skrl.agents.torch.ppo import PPO_CFG
 from skrl.memories.torch import RandomMemory
-from skrl.models.torch import DeterministicMixin, GaussianMixin, Model
+from skrl.models.torch import GaussianMixin, Model
 from skrl.resources.schedulers.torch import KLAdaptiveLR
 from torch import nn
 
+from lab_skrl import offpolicy, sac, td3
 from lab_skrl.adapter import SkrlEnv
-from lab_skrl.config import SkrlPPOConfig
-from lab_skrl.ppo import LabSkrlPPO, RankedScaler, join_ranks
+from lab_skrl.config import OffPolicyConfig, SkrlPPOConfig
+from lab_skrl.networks import Critic, mlp
+from lab_skrl.ppo import OBS_EPSILON, LabSkrlPPO, RankedScaler, join_ranks
 from labcli.errors import LabError, first_line
 from labcli.plugins.framework import Framework, TrainContext
 from labcli.plugins.policy import (
@@ -33,19 +36,10 @@ from labcli.plugins.policy import (
     read_torch_file,
 )
 
-ACTIVATIONS = {"tanh": nn.Tanh, "relu": nn.ReLU, "elu": nn.ELU}
 META = "lab"  # checkpoint entry with what lab needs besides skrl's modules
 META_KEYS = {"observation_size", "action_size", "hidden_sizes", "activation", "obs_clip",
              "obs_epsilon", "steps"}
-OBS_EPSILON = 1e-8  # RunningStandardScaler's default, stored so the frozen copy matches
-
-
-def mlp(n_in: int, hidden: list[int], n_out: int, activation: str) -> nn.Sequential:
-    layers: list[nn.Module] = []
-    for size in hidden:
-        layers += [nn.Linear(n_in, size), ACTIVATIONS[activation]()]
-        n_in = size
-    return nn.Sequential(*layers, nn.Linear(n_in, n_out))
+SkrlAgent = LabSkrlPPO | offpolicy.OffPolicy
 
 
 class Actor(GaussianMixin, Model):
@@ -62,18 +56,6 @@ class Actor(GaussianMixin, Model):
 
     def compute(self, inputs: dict[str, Any], role: str = "") -> tuple[torch.Tensor, dict]:
         return self.net(inputs["observations"]), {"log_std": self.log_std_parameter}
-
-
-class Critic(DeterministicMixin, Model):
-    def __init__(self, observation_space: gym.Space, action_space: gym.Space, device: Any,
-                 hidden_sizes: list[int], activation: str):
-        Model.__init__(self, observation_space=observation_space, action_space=action_space,
-                       device=device)
-        DeterministicMixin.__init__(self, clip_actions=False)
-        self.net = mlp(self.num_observations, hidden_sizes, 1, activation)
-
-    def compute(self, inputs: dict[str, Any], role: str = "") -> tuple[torch.Tensor, dict]:
-        return self.net(inputs["observations"]), {}
 
 
 class _ScaleRewards:
@@ -127,32 +109,50 @@ def make_agent(cfg: SkrlPPOConfig, env: SkrlEnv, device: str, run_dir: Path) -> 
 
 
 class SkrlFramework(Framework):
+    """skrl's PPO; the off-policy frameworks below change what differs for SAC and TD3 (the
+    agent, what a checkpoint holds besides skrl's modules, the policy it plays)."""
+
+    def make_agent(self, env: SkrlEnv, ctx: TrainContext) -> Any:
+        return make_agent(ctx.cfg, env, ctx.device, ctx.run_dir)  # type: ignore[arg-type]
+
+    def restore(self, agent: Any, saved: dict[str, Any], ctx: TrainContext) -> None:
+        load_agent(agent, saved, ctx.resume.path)  # type: ignore[union-attr]
+        if "learning_rate" in ctx.changed:  # the optimizer came back with the old one
+            agent.set_learning_rate(ctx.cfg.learning_rate)  # type: ignore[attr-defined]
+
+    def networks(self, agent: Any) -> tuple[nn.Module, ...]:
+        return agent.policy, agent.value
+
+    def describe(self, cfg: Any) -> dict[str, Any]:
+        """What the policy's network is, beside its weights: load_policy rebuilds it from
+        this alone."""
+        return {"hidden_sizes": list(cfg.hidden_sizes), "activation": cfg.activation,
+                "obs_clip": cfg.clip_obs, "obs_epsilon": OBS_EPSILON}
+
+    def save_beside(self, agent: Any, checkpoint: Path) -> None:
+        """Files a checkpoint holds besides skrl's modules: none for PPO."""
+
     def train(self, env: SkrlEnv, ctx: TrainContext) -> None:
-        cfg: SkrlPPOConfig = ctx.cfg  # type: ignore[assignment]
+        cfg = ctx.cfg
         join_ranks(ctx.rank, torch.device(ctx.device).index or 0, ctx.world_size)
-        agent = make_agent(cfg, env, ctx.device, ctx.run_dir)
+        agent = self.make_agent(env, ctx)
         agent.update_threads = ctx.update_threads
         steps = 0
         if ctx.resume is not None:
             saved = read_checkpoint(ctx.resume.path)
-            load_agent(agent, saved, ctx.resume.path)
+            self.restore(agent, saved, ctx)
             steps = saved[META]["steps"]
-            if "learning_rate" in ctx.changed:  # the optimizer came back with the old one
-                agent.set_learning_rate(cfg.learning_rate)
-        meta = {
-            "observation_size": _size(env.observation_space),
-            "action_size": _size(env.action_space),
-            "hidden_sizes": list(cfg.hidden_sizes), "activation": cfg.activation,
-            "obs_clip": cfg.clip_obs, "obs_epsilon": OBS_EPSILON,
-        }
+        meta = {"observation_size": _size(env.observation_space),
+                "action_size": _size(env.action_space), **self.describe(cfg)}
 
         def save(path: Path) -> None:
             modules = {name: module.state_dict()
                        for name, module in agent.checkpoint_modules.items()}
             torch.save({**modules, META: {**meta, "steps": steps}}, path)
+            self.save_beside(agent, path)
 
         agent.enable_training_mode(True)
-        ctx.watch(agent.policy, agent.value)
+        ctx.watch(*self.networks(agent))
         ctx.set_actor(lambda obs: _act(agent, obs))
         # A stop mid-rollout raises StopTraining from env.step: that rollout is dropped, and
         # ctx.training checkpoints the last complete iteration.
@@ -165,20 +165,22 @@ class SkrlFramework(Framework):
                 if ctx.end_iteration(iteration, steps, save, _pop_tracking(agent)):
                     break
 
+    def actor(self, checkpoint: Path, saved: dict[str, Any], env: Any) -> nn.Module:
+        """The deterministic actor of a checkpoint, its weights loaded."""
+        meta = saved[META]
+        hidden = check_mlp(checkpoint, meta["observation_size"], meta["hidden_sizes"],
+                           meta["action_size"])
+        actor = Actor(env.single_observation_space, env.single_action_space, "cpu", hidden,
+                      meta["activation"], 0.0)
+        _load_policy_weights(actor, saved, checkpoint)
+        return actor.net
+
     def load_policy(self, checkpoint: Path, env: Any, cfg: Any = None) -> Policy:
         # The checkpoint describes its own networks (see save): `cfg` is not needed.
         saved = read_checkpoint(checkpoint)
         meta = saved[META]
         _check_sizes(checkpoint, meta, env)
-        hidden = check_mlp(checkpoint, meta["observation_size"], meta["hidden_sizes"],
-                           meta["action_size"])
-        actor = Actor(env.single_observation_space, env.single_action_space, "cpu", hidden,
-                      meta["activation"], 0.0)
-        try:
-            actor.load_state_dict(saved["policy"])
-        except (KeyError, RuntimeError) as exc:
-            raise LabError(f"checkpoint {checkpoint.name} has no policy matching its own "
-                           f"description: {first_line(exc)}", "pick another checkpoint") from exc
+        actor = self.actor(checkpoint, saved, env)
         normalizer = None
         scaler = saved.get("observation_preprocessor")
         if scaler is not None:
@@ -186,21 +188,82 @@ class SkrlFramework(Framework):
             # sqrt(var' + 0), so var' = (sqrt(var) + eps)² gives the same numbers.
             std = scaler["running_variance"].sqrt() + meta["obs_epsilon"]
             normalizer = ObsNormalizer(scaler["running_mean"], std.square(), 0.0, meta["obs_clip"])
-        return Policy(actor.net, normalizer).eval()
+        return Policy(actor, normalizer).eval()
 
 
-def _act(agent: LabSkrlPPO, obs: torch.Tensor) -> torch.Tensor:
+class _OffPolicyFramework(SkrlFramework):
+    """skrl's SAC or TD3 (lab_skrl.offpolicy): each checkpoint also saves the replay memory,
+    and the policy played and exported is the actor's deterministic, bounded action."""
+
+    algorithm: Any  # the module with the agent's make_agent and actor class
+    actor_class: type[offpolicy.BoundedActor]
+
+    def make_agent(self, env: SkrlEnv, ctx: TrainContext) -> Any:
+        cfg: OffPolicyConfig = ctx.cfg  # type: ignore[assignment]
+        return self.algorithm.make_agent(cfg, env, ctx.device, ctx.run_dir,
+                                         _ScaleRewards(cfg.reward_scale))
+
+    def restore(self, agent: Any, saved: dict[str, Any], ctx: TrainContext) -> None:
+        load_agent(agent, saved, ctx.resume.path)  # type: ignore[union-attr]
+        agent.fuse_adam()
+        offpolicy.load_memory(agent.memory, ctx.resume.path)  # type: ignore[union-attr]
+        if "learning_rate" in ctx.changed:  # the optimizers came back with the old one
+            agent.set_learning_rate(ctx.cfg.learning_rate)  # type: ignore[attr-defined]
+
+    def networks(self, agent: Any) -> tuple[nn.Module, ...]:
+        return agent.policy, agent.critic_1, agent.critic_2
+
+    def describe(self, cfg: Any) -> dict[str, Any]:
+        return {**super().describe(cfg), "action_bound": cfg.action_bound}
+
+    def save_beside(self, agent: Any, checkpoint: Path) -> None:
+        offpolicy.save_memory(agent.memory, offpolicy.memory_path(checkpoint))
+
+    def actor(self, checkpoint: Path, saved: dict[str, Any], env: Any) -> nn.Module:
+        meta = saved[META]
+        bound = meta.get("action_bound")
+        if isinstance(bound, bool) or not isinstance(bound, (int, float)) or not bound > 0:
+            raise LabError(f"checkpoint {checkpoint.name} is not a {self.spec.name} checkpoint "
+                           "(it has no action bound)",
+                           "play it with the framework it was trained with")
+        hidden = check_mlp(checkpoint, meta["observation_size"], meta["hidden_sizes"],
+                           self.actor_class.outputs * meta["action_size"])
+        actor = self.actor_class(env.single_observation_space, env.single_action_space, "cpu",
+                                 hidden, meta["activation"], float(bound))
+        _load_policy_weights(actor, saved, checkpoint)
+        return actor.deterministic
+
+
+class SkrlSACFramework(_OffPolicyFramework):
+    algorithm = sac
+    actor_class = sac.SquashedActor
+
+
+class SkrlTD3Framework(_OffPolicyFramework):
+    algorithm = td3
+    actor_class = td3.TanhActor
+
+
+def _load_policy_weights(actor: nn.Module, saved: dict[str, Any], checkpoint: Path) -> None:
+    try:
+        actor.load_state_dict(saved["policy"])
+    except (KeyError, RuntimeError) as exc:
+        raise LabError(f"checkpoint {checkpoint.name} has no policy matching its own "
+                       f"description: {first_line(exc)}", "pick another checkpoint") from exc
+
+
+def _act(agent: SkrlAgent, obs: torch.Tensor) -> torch.Tensor:
     """The policy's mean action, through skrl's own (frozen) observation preprocessor."""
     with torch.no_grad():
         inputs = {"observations": agent._observation_preprocessor(obs)}
         return agent.policy.compute(inputs, role="policy")[0]
 
 
-def _collect_and_update(agent: LabSkrlPPO, env: SkrlEnv, obs: torch.Tensor, ctx: TrainContext,
+def _collect_and_update(agent: SkrlAgent, env: SkrlEnv, obs: torch.Tensor, ctx: TrainContext,
                         iteration: int) -> torch.Tensor:
     """One rollout of `cfg.rollouts` steps; skrl updates inside the last `post_interaction`.
     Returns the next observations."""
-    cfg: SkrlPPOConfig = ctx.cfg  # type: ignore[assignment]
+    cfg: SkrlPPOConfig | OffPolicyConfig = ctx.cfg  # type: ignore[assignment]
     total = cfg.max_iterations * cfg.rollouts
     for step in range(cfg.rollouts):
         t = (iteration - 1) * cfg.rollouts + step
@@ -222,7 +285,7 @@ def _collect_and_update(agent: LabSkrlPPO, env: SkrlEnv, obs: torch.Tensor, ctx:
     return obs
 
 
-def _pop_tracking(agent: LabSkrlPPO) -> dict[str, float]:
+def _pop_tracking(agent: SkrlAgent) -> dict[str, float]:
     """skrl's own figures (losses, policy std, learning rate), averaged over the iteration."""
     scalars = {tag.replace(" / ", "/"): float(sum(values) / len(values))
                for tag, values in agent.tracking_data.items() if values}
@@ -244,7 +307,7 @@ def read_checkpoint(path: Path) -> dict[str, Any]:
     return saved
 
 
-def load_agent(agent: LabSkrlPPO, saved: dict[str, Any], path: Path) -> None:
+def load_agent(agent: SkrlAgent, saved: dict[str, Any], path: Path) -> None:
     """Restore models, optimizer (with its learning rate) and preprocessors."""
     for name, module in agent.checkpoint_modules.items():
         if name not in saved:

@@ -48,6 +48,9 @@ def join_ranks(rank: int, local_rank: int, world_size: int) -> None:
     cfg._is_distributed = world_size > 1
 
 
+OBS_EPSILON = 1e-8  # RunningStandardScaler's default, stored so the frozen copy matches
+
+
 class RankedScaler(RunningStandardScaler):
     """skrl's running standard scaler, whose statistics take in the batches of every rank of a
     data-parallel run (skrl's own updates from its rank's alone, so the ranks' scalers, and the
