@@ -87,6 +87,7 @@ def agent_settings(cfg: OffPolicyConfig, obs_space: gym.Space, device: str, run_
 
 
 def replay_memory(cfg: OffPolicyConfig, num_envs: int, device: str) -> RandomMemory:
+    # Drawn with replacement: without, skrl permutes the whole memory for every batch.
     return RandomMemory(memory_size=max(1, cfg.buffer_size // num_envs), num_envs=num_envs,
                         device=device, replacement=True)
 
