@@ -25,7 +25,8 @@ SPEC = FrameworkSpec(
 OFF_POLICY_DEFAULTS = {
     "cartpole": {"env": {"num_envs": 16}, "agent": {
         "max_iterations": 300, "rollouts": 32, "gradient_steps": 4, "hidden_sizes": [64, 64]}},
-    # TD3 on 2 cores: success 0.9 after 164 k steps (PPO's rsl_rl: 385-516 k), 97% in play.
+    # On 2 cores, success 0.9 after a median 92 k steps and 147 s with SAC, 164 k and 290 s
+    # with TD3 (rsl_rl's PPO: 516 k and 110.5 s; docs/benchmarks.md).
     "ant": {"env": {"num_envs": 32}, "agent": {"max_iterations": 1000, "gradient_steps": 2}},
 }
 
