@@ -4,6 +4,8 @@ count)."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import gymnasium as gym
 import numpy as np
 import pytest
@@ -52,13 +54,14 @@ def test_a_resume_after_the_replay_memory_wrapped_around_equals_an_unbroken_run(
     assert testing.check_resume(name, tmp_path, overrides) == 0.0
 
 
-def _trained(tmp_path, *extra: str):
-    outcome = testing.train_small("skrl_sac", tmp_path / "run", 2, [*SMALL, *extra])
-    return outcome.run.dir, registry.get_framework("skrl_sac").checkpoint_path(outcome.run.dir, 2)
+def _trained(tmp_path) -> Path:
+    """The checkpoint of 2 iterations of SAC in tmp_path/run."""
+    outcome = testing.train_small("skrl_sac", tmp_path / "run", 2, SMALL)
+    return registry.get_framework("skrl_sac").checkpoint_path(outcome.run.dir, 2)
 
 
 def test_a_checkpoint_saves_the_replay_memory_beside_it(tmp_path):
-    run_dir, checkpoint = _trained(tmp_path)
+    checkpoint = _trained(tmp_path)
     saved = torch.load(memory_path(checkpoint), weights_only=True)
     # 2 iterations × 8 steps of 4 envs: 16 rows of 4 transitions, written on from row 16.
     assert saved["memory_index"] == 16 and not saved["filled"]
@@ -67,7 +70,7 @@ def test_a_checkpoint_saves_the_replay_memory_beside_it(tmp_path):
 
 
 def test_a_checkpoint_without_its_replay_memory_is_not_resumed(tmp_path):
-    run_dir, checkpoint = _trained(tmp_path)
+    checkpoint = _trained(tmp_path)
     memory_path(checkpoint).unlink()
     with pytest.raises(LabError, match="no complete checkpoint of a skrl_sac run"):
         testing.train_small("skrl_sac", tmp_path / "run", 3, SMALL, checkpoint=checkpoints.LATEST)
@@ -83,7 +86,7 @@ def test_a_resume_with_another_env_count_keeps_the_newest_transitions(tmp_path, 
                       rewards=memory.tensors["rewards"].clone())
 
     monkeypatch.setattr(offpolicy, "load_memory", load)
-    run_dir, checkpoint = _trained(tmp_path)  # 16 rows of 4 envs: 64 transitions
+    checkpoint = _trained(tmp_path)  # 16 rows of 4 envs: 64 transitions
     saved = torch.load(memory_path(checkpoint), weights_only=True)["tensors"]["rewards"]
     # 6 envs: 10 whole rows of the newest 60 transitions, oldest first.
     testing.train_small("skrl_sac", tmp_path / "run", 3, SMALL, num_envs=6,
@@ -93,7 +96,7 @@ def test_a_resume_with_another_env_count_keeps_the_newest_transitions(tmp_path, 
 
 
 def test_a_replay_memory_of_other_observations_is_one_line(tmp_path):
-    run_dir, checkpoint = _trained(tmp_path)
+    checkpoint = _trained(tmp_path)
     # A memory of 3 observations where the run's have 4.
     memory = RandomMemory(memory_size=8, num_envs=4, device="cpu")
     for name, size in (("observations", 3), ("next_observations", 3), ("actions", 1),

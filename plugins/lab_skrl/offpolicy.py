@@ -41,7 +41,7 @@ class BoundedActor(Model):
     the first of them the squashed mean. Its random actions are uniform in ±bound (skrl's own
     sample the action space, which may be far wider)."""
 
-    outputs = 1  # numbers per action
+    outputs = OffPolicyConfig.actor_outputs  # numbers per action
 
     def __init__(self, observation_space: gym.Space, action_space: gym.Space, device: Any,
                  hidden_sizes: list[int], activation: str, bound: float):
@@ -133,18 +133,20 @@ class OffPolicy:
 
     def learn(self, staged: list[dict[str, Any]], timesteps: int) -> None:
         """The rollout's transitions into the memory, each followed by its updates."""
-        for transition in staged:
-            super().record_transition(infos=None, **transition)  # type: ignore[misc]
-            if self.training and transition["timestep"] >= self.cfg.learning_starts:
-                self.enable_models_training_mode(True)
-                self.update(timestep=transition["timestep"], timesteps=timesteps)
-                self.enable_models_training_mode(False)
+        self.enable_models_training_mode(True)
+        with torch_threads(self.device, self.update_threads):
+            for transition in staged:
+                super().record_transition(infos=None, **transition)  # type: ignore[misc]
+                if self.training and transition["timestep"] >= self.cfg.learning_starts:
+                    self.update(timestep=transition["timestep"], timesteps=timesteps)
+        self.enable_models_training_mode(False)
 
     def update(self, *, timestep: int, timesteps: int) -> None:
-        self.write_interval = 1  # skrl's update tracks its figures only with an interval
+        # skrl's update tracks its figures only with a write interval, and its record of a
+        # transition then tracks rewards too, which lab logs itself: on for the update alone.
+        self.write_interval = 1
         try:
-            with torch_threads(self.device, self.update_threads):
-                super().update(timestep=timestep, timesteps=timesteps)  # type: ignore[misc]
+            super().update(timestep=timestep, timesteps=timesteps)  # type: ignore[misc]
         finally:
             self.write_interval = 0
 

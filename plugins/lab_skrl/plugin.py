@@ -18,7 +18,6 @@ SPEC = FrameworkSpec(
     description="skrl PPO (torch end to end; running observation normalizer)")
 
 
-
 # Few envs and several updates a step: the learner, not the physics, bounds an off-policy run
 # on the CPU. Cartpole on 2 cores: SAC's return rose from -100 to 0-50 in 12,800 steps, where
 # 8 steps an iteration took 25 iterations to get over the dip after its random actions.

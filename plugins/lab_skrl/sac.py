@@ -27,7 +27,7 @@ LOG_STD_MIN, LOG_STD_MAX = -5.0, 2.0  # CleanRL's and FastTD3's bounds of the ac
 class SquashedActor(BoundedActor):
     """One MLP gives the mean and log std of a Gaussian whose samples are squashed by tanh."""
 
-    outputs = 2
+    outputs = SkrlSACConfig.actor_outputs  # a mean and a log std per action
 
     def act(self, inputs: dict[str, Any], role: str = "") -> tuple[torch.Tensor, dict]:
         mean, log_std = self.net(inputs["observations"]).chunk(2, dim=-1)
