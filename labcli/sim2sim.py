@@ -44,6 +44,7 @@ class PlainLoop:
         deployment = self.meta["deployment"]
         joints = deployment["joints"]
         self.actuators = np.array([self.model.actuator(j["actuator"]).id for j in joints])
+        self.motors = _Motors(self.model, joints) if any("motor" in j for j in joints) else None
         self.scale = np.array([j["action_scale"] for j in joints])
         self.offset = np.array([j["action_offset"] for j in joints])
         self.default = {j["joint"]: j["default_position"] for j in joints}
@@ -149,8 +150,10 @@ class PlainLoop:
         physics steps."""
         action = self.session.run(None, {"obs": self.observe(command)[None]})[0][0]
         self.last_action = np.clip(action.astype(np.float64), self.low, self.high)
-        self.data.ctrl[self.actuators] = self.offset + self.scale * self.last_action
+        target = self.offset + self.scale * self.last_action
         for _ in range(self.decimation):
+            self.data.ctrl[self.actuators] = (target if self.motors is None
+                                              else self.motors(target, self.data))
             mujoco.mj_step(self.model, self.data)
 
     def reset(self, qpos: np.ndarray, qvel: np.ndarray) -> None:
@@ -174,6 +177,38 @@ class PlainLoop:
             if fell(self.model, self.data):
                 return Trajectory(np.array(lin), np.array(yaw), t)
         return Trajectory(np.array(lin), np.array(yaw), None)
+
+
+class _Motors:
+    """The export's motor models (`deployment.joints[i].motor`), each physics step: a PD law's
+    torque toward the target, within the motor's torque-speed line and effort limit, as a
+    robot's motor driver computes it; joints without a model get their target as it is."""
+
+    def __init__(self, model: mujoco.MjModel, joints: list[dict[str, Any]]):
+        if any(j.get("motor", {}).get("model") == "mlp" for j in joints):
+            raise ValueError("its joints are driven by a learned actuator net (motor model "
+                             "mlp), which the plain loop does not run")
+        explicit = [i for i, j in enumerate(joints) if "motor" in j]
+        self.explicit = np.array(explicit)
+        ids = [model.joint(joints[i]["joint"]).id for i in explicit]
+        self.qadr, self.dadr = model.jnt_qposadr[ids], model.jnt_dofadr[ids]
+        motors = [joints[i]["motor"] for i in explicit]
+        self.kp = np.array([m["stiffness"] for m in motors])
+        self.kd = np.array([m["damping"] for m in motors])
+        self.effort = np.array([joints[i]["effort_limit"] for i in explicit])
+        self.saturation = np.array([m.get("saturation_effort") or e
+                                    for m, e in zip(motors, self.effort, strict=True)])
+        self.velocity = np.array([m.get("velocity_limit") or np.inf for m in motors])
+
+    def __call__(self, target: np.ndarray, data: mujoco.MjData) -> np.ndarray:
+        q, qd = data.qpos[self.qadr], data.qvel[self.dadr]
+        torque = self.kp * (target[self.explicit] - q) - self.kd * qd
+        speed = qd / self.velocity
+        high = np.minimum(np.maximum(self.saturation * (1.0 - speed), 0.0), self.effort)
+        low = np.maximum(np.minimum(self.saturation * (-1.0 - speed), 0.0), -self.effort)
+        ctrl = target.copy()
+        ctrl[self.explicit] = np.clip(torque, low, high)
+        return ctrl
 
 
 def tracking_errors(commands: np.ndarray, lin_vel_b: np.ndarray, yaw_rate: np.ndarray,

@@ -396,16 +396,25 @@ def test_train_play_and_export_go1_from_the_command_line(tmp_path):
     loaded.env.close()
 
 
+DC_MOTORS = ["env.robot.actuators.hip.model=dc_motor", "env.robot.actuators.knee.model=dc_motor"]
+
+
 @pytest.mark.gpu
 @pytest.mark.skipif(not (HAVE_WARP and torch.cuda.is_available()),
                     reason='needs a CUDA GPU and MuJoCo Warp (pip install -e ".[warp]")')
-@pytest.mark.parametrize("delay", [None, "[5,5]"], ids=["held", "delayed"])
-def test_both_backends_agree_on_a_short_go1_rollout(delay):
+@pytest.mark.parametrize("extra", [[], ["env.actions.delay=[5,5]"], DC_MOTORS,
+                                   [*DC_MOTORS, "env.actions.delay=[5,5]"], "mlp"],
+                         ids=["held", "delayed", "dc_motor", "dc_motor-delayed", "mlp"])
+def test_both_backends_agree_on_a_short_go1_rollout(extra, tmp_path):
     """As test_robot_tasks' check for ant and humanoid: from the same state, lifted off the
     floor, the same actions give the same observations and rewards on both backends; also
-    with each physics step's own control (a motor's latency, inside the step's CUDA graph)."""
-    overrides = ["env.observation_noise=false", "env.events.push_robot=null",
-                 *([f"env.actions.delay={delay}"] if delay else [])]
+    with each physics step's own control (a motor's latency, motor models' torques computed
+    between the physics steps, inside the step's CUDA graph)."""
+    if extra == "mlp":
+        from test_motors import pd_net
+
+        extra = pd_net(tmp_path / "net.pt")
+    overrides = ["env.observation_noise=false", "env.events.push_robot=null", *extra]
     cpu = make_env("go1-flat", num_envs=8, backend="cpu", device="cpu", seed=0,
                    overrides=overrides)
     gpu = make_env("go1-flat", num_envs=8, backend="warp", device="cuda", seed=0,

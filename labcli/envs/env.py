@@ -268,13 +268,13 @@ class LabVecEnv(gym.vector.VectorEnv):
         """The MDP of one env step, as torch operations only (no host syncs, fixed shapes), so
         that on a GPU it replays as a CUDA graph. With `out`, its outputs go there."""
         bad_action = self._act(actions)
-        self.sim.step(self.cfg.decimation, self.task.controls)
+        self.sim.step(self.cfg.decimation, self.task.controls, self.task.substep)
         return self._settle(out or _NEW_OUTPUTS, bad_action)
 
     def _compiled_step(self, actions: torch.Tensor, out: StepOutputs) -> None:
         act, settle = self._compiled
         act(actions.contiguous())  # compiled for a contiguous input
-        self.sim.step(self.cfg.decimation, self.task.controls)
+        self.sim.step(self.cfg.decimation, self.task.controls, self.task.substep)
         settle(*(getattr(out, f.name) for f in fields(StepOutputs)))
 
     def _act(self, actions: torch.Tensor) -> torch.Tensor | None:

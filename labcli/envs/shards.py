@@ -355,8 +355,10 @@ class ShardedVecEnv(gym.vector.VectorEnv):
         model, per_env_fields = (spec.task_class.build_model(cfg, spec.model),
                                  spec.task_class.per_env_fields(cfg))
         check_fits(model, n, per_env_fields)
+        # A task that writes controls between physics steps (motor models) steps one at a time.
+        nstep = 1 if spec.task_class.acts_each_physics_step(cfg) else cfg.decimation
         board = ChunkBoard(ctx, model, [(shard.first, shard.stop) for shard in self._shards],
-                           cfg.decimation, per_env_fields)
+                           nstep, per_env_fields)
         # Shard 0 first, here: a config the task refuses fails before any process starts.
         self._local = LabVecEnv(
             spec, shard_cfg(first), backend="cpu", seed=seed, autoreset_mode=self.autoreset_mode,

@@ -6,7 +6,7 @@ on every backend. Plugins register a `TaskSpec` (labcli/envs/spec.py) naming it.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from typing import Any, ClassVar
 
 import mujoco
@@ -41,6 +41,10 @@ class Task:
     # `apply_actions` writes where controls change inside a step (a motor's latency); None: the
     # physics holds `sim.ctrl` through the step.
     controls: torch.Tensor | None = None
+    # Called before each physics step k (0 <= k < decimation) of an env step with k, to write
+    # `sim.ctrl` from the state then (a motor model's torques, `acts_each_physics_step`); None:
+    # the physics steps `controls` or `sim.ctrl` as they are.
+    substep: Callable[[int], None] | None = None
 
     def __init__(self, cfg: TaskConfig, sim: Sim):
         self.cfg = cfg
@@ -60,6 +64,12 @@ class Task:
         model = spec.compile()
         models.set_options(model, cfg)
         return model
+
+    @classmethod
+    def acts_each_physics_step(cls, cfg: TaskConfig) -> bool:
+        """Whether a task made with `cfg` sets `substep`: the cpu backend's env shards then
+        step their physics one physics step at a time. The default: no."""
+        return False
 
     @classmethod
     def per_env_fields(cls, cfg: TaskConfig) -> tuple[str, ...]:

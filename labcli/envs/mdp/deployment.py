@@ -1,5 +1,6 @@
 """What a deployer wires around an exported robot policy besides the network, read from the task
-as built: each action's joint, actuator, default position, PD gains, limits, scale and offset;
+as built: each action's joint, actuator, default position, PD gains, limits, scale and offset
+(and the motor model that turns its target into a torque, where lab computes it);
 each observation term's columns, scale, clip, training noise, frames and lag; each command's
 fields and ranges; the motors' latency it was trained under. `lab export` writes it into the
 policy's metadata (and, for ONNX, also under the keys mjlab's exports use).
@@ -42,12 +43,16 @@ def _joints(task: RobotTask) -> list[dict[str, Any]]:
     default = task.robot.default_joint_pos[0].tolist()
     rows = []
     for i, name in enumerate(task.action_names):
-        kp, kd = _gains(model, i)
+        # A motor model's law (labcli.envs.mdp.motors): the MjModel's actuator is then a plain
+        # motor that takes the torque lab computed toward the action's target.
+        motor = task.motors.describe(i) if task.motors is not None else None
+        kp, kd = (motor["stiffness"], motor["damping"]) if motor else _gains(model, i)
         rows.append({
             "joint": name, "actuator": actuator_name(model, i), "default_position": default[i],
             "stiffness": kp, "damping": kd, "effort_limit": _effort_limit(model, i),
             "action_scale": scale[i], "action_offset": offset[i],
-            "command": "position target" if kp is not None else "torque"})
+            "command": "position target" if kp is not None else "torque",
+            **({"motor": motor} if motor else {})})
     return rows
 
 

@@ -16,6 +16,35 @@ from typing import Literal
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 Patterns = list[str]
+# How a group's joint torques arise (Isaac Lab's and mjlab's actuator models): `implicit`,
+# MuJoCo's position servo, its damping integrated implicitly; the others are computed by lab at
+# every physics step from the state then and sent to a plain motor: `ideal_pd`, the PD law
+# clipped to the effort limit; `dc_motor`, that torque within the motor's torque-speed line;
+# `mlp`, a learned actuator net over the history of position errors and velocities.
+ActuatorModel = Literal["implicit", "ideal_pd", "dc_motor", "mlp"]
+
+
+class ActuatorNet(BaseModel):
+    """A learned actuator model (Isaac Lab's `ActuatorNetMLP`, mjlab's `LearnedMlpActuator`):
+    a TorchScript network that maps, per joint, the position errors (target - position) and
+    velocities of chosen past physics steps to the joint's torque."""
+
+    model_config = ConfigDict(extra="forbid", validate_assignment=True, allow_inf_nan=False)
+
+    file: str = Field(min_length=1, description="the TorchScript network (torch.jit.save)")
+    input_order: Literal["pos_vel", "vel_pos"] = Field("pos_vel", description="which half of "
+                                                       "the input comes first")
+    input_idx: list[int] = Field([0, 1, 2], min_length=1, description="physics steps back "
+                                 "(0: now) of each input; the history holds max + 1")
+    pos_scale: float = Field(1.0, description="times the position errors, rad")
+    vel_scale: float = Field(1.0, description="times the velocities, rad/s")
+    torque_scale: float = Field(1.0, description="times the network's output, N m")
+
+    @model_validator(mode="after")
+    def _indices(self) -> ActuatorNet:
+        if min(self.input_idx) < 0:
+            raise ValueError("input_idx counts physics steps back from 0 (now): no negatives")
+        return self
 
 
 class Actuators(BaseModel):
@@ -42,6 +71,25 @@ class Actuators(BaseModel):
                                           "N m s/rad; None: the model's")
     frictionloss: float | None = Field(None, ge=0, description="the joint's dry friction, N m; "
                                        "None: the model's")
+    model: ActuatorModel = Field("implicit", description="implicit: MuJoCo's position servo; "
+                                 "ideal_pd, dc_motor, mlp: torques lab computes each physics "
+                                 "step (see labcli.envs.mdp.motors)")
+    saturation_effort: float | None = Field(None, gt=0, description="dc_motor, mlp: the "
+                                            "motor's torque at rest, N m; None: effort_limit")
+    network: ActuatorNet | None = Field(None, description="mlp: the learned actuator net")
+
+    @model_validator(mode="after")
+    def _model_complete(self) -> Actuators:
+        if self.model == "dc_motor" and self.velocity_limit is None:
+            raise ValueError("a dc_motor needs velocity_limit: its torque falls to 0 there")
+        if self.model == "mlp" and self.network is None:
+            raise ValueError("an mlp actuator needs network (its TorchScript file and inputs)")
+        return self
+
+    @property
+    def explicit(self) -> bool:
+        """Whether lab computes this group's torques (every model but `implicit`)."""
+        return self.model != "implicit"
 
     def gains(self, frequency_hz: float, damping_ratio: float) -> tuple[float, float]:
         """(kp, kd): as given, else derived from the armature."""

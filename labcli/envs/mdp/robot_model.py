@@ -1,7 +1,7 @@
 """A robot description (`labcli.envs.mdp.description`) written into the model's MjSpec before
 it is compiled: each actuated joint's armature, effort limit and (where given) passive damping
-and friction, its actuator a PD position servo with the description's gains, and the contact
-pairs it keeps."""
+and friction, its actuator a PD position servo with the description's gains (or, for a group
+whose torques lab computes, a motor), and the contact pairs it keeps."""
 
 from __future__ import annotations
 
@@ -38,15 +38,24 @@ def apply(spec: mujoco.MjSpec, robot: RobotDescription) -> None:
         # the servo asks for.
         joint.actfrcrange = [-group.effort_limit, group.effort_limit]
         joint.actfrclimited = mujoco.mjtLimited.mjLIMITED_TRUE
-        inherit = actuator.inheritrange  # the servo's targets: the joint's range, if so
-        was_motor = actuator.biastype == mujoco.mjtBias.mjBIAS_NONE
-        actuator.set_to_position(kp=kp, kv=kd)
-        actuator.inheritrange = inherit
-        if was_motor:
-            # A motor's control range is in N m (Menagerie's Go2): a servo's targets are angles,
-            # within the joint's range.
-            actuator.ctrlrange = joint.range
-            actuator.ctrllimited = joint.limited
+        if group.explicit:
+            # lab computes the torque each physics step (labcli.envs.mdp.motors): the actuator
+            # passes it on, as a motor of unit gear.
+            actuator.set_to_motor()
+            actuator.gear[:] = [1.0, 0.0, 0.0, 0.0, 0.0, 0.0]
+            actuator.inheritrange = 0.0
+            actuator.ctrlrange = [-group.effort_limit, group.effort_limit]
+            actuator.ctrllimited = mujoco.mjtLimited.mjLIMITED_TRUE
+        else:
+            inherit = actuator.inheritrange  # the servo's targets: the joint's range, if so
+            was_motor = actuator.biastype == mujoco.mjtBias.mjBIAS_NONE
+            actuator.set_to_position(kp=kp, kv=kd)
+            actuator.inheritrange = inherit
+            if was_motor:
+                # A motor's control range is in N m (Menagerie's Go2): a servo's targets are
+                # angles, within the joint's range.
+                actuator.ctrlrange = joint.range
+                actuator.ctrllimited = joint.limited
         actuator.forcerange = [-group.effort_limit, group.effort_limit]
         actuator.forcelimited = mujoco.mjtLimited.mjLIMITED_TRUE
     if robot.contact_pairs is not None:

@@ -32,6 +32,7 @@ from labcli import refs
 from labcli.envs import models
 from labcli.envs.mdp import deployment, frames, robot_model, sensors, terrain_model
 from labcli.envs.mdp.config import Group, RobotTaskConfig, Term
+from labcli.envs.mdp.motors import ExplicitMotors
 from labcli.envs.mdp.robot import Robot
 from labcli.envs.mdp.terrain_grid import TerrainGrid
 from labcli.envs.models import ModelSource
@@ -103,6 +104,10 @@ class RobotTask(Task):
         return model
 
     @classmethod
+    def acts_each_physics_step(cls, cfg: RobotTaskConfig) -> bool:  # type: ignore[override]
+        return cfg.robot is not None and any(g.explicit for g in cfg.robot.actuators.values())
+
+    @classmethod
     def per_env_fields(cls, cfg: RobotTaskConfig) -> tuple[str, ...]:  # type: ignore[override]
         return tuple(sorted({field for _, term in cfg.events.terms()
                              for field in getattr(impl_of(term), "fields", ())}))
@@ -164,6 +169,17 @@ class RobotTask(Task):
             self.controls = delay.controls
             self._term_resets.append(delay.reset)
             self._carriers.append(("actions/delay", delay))
+        # The action term's position targets: the servos' controls, or what explicit motors
+        # turn into torques before each physics step.
+        self.targets = sim.ctrl
+        self.motors: ExplicitMotors | None = None
+        if self.acts_each_physics_step(cfg):
+            self.targets = torch.zeros_like(sim.ctrl)
+            self.motors = ExplicitMotors(self, self.targets, self.controls)
+            self.substep, self.controls = self.motors, None
+            for name, net in self.motors.nets.items():
+                self._term_resets.append(net.reset)
+                self._carriers.append((f"actions/net/{name}", net))
         self._carriers += [(f"shared{i}", s) for i, s in enumerate(shared)
                            if getattr(s, "carried", ())]
         if self.terrain is not None:
@@ -205,15 +221,21 @@ class RobotTask(Task):
             self._frames.advance()
         for hook in self._pre_physics:
             hook()
-        self.actuation(self.action, self.sim.ctrl)
+        self.actuation(self.action, self.targets)
 
     def action_commands(self) -> list[dict[str, Any]]:
+        commands = list(self.actuation.commands)
+        for i in range(self.model.nu):
+            motor = self.motors.describe(i) if self.motors is not None else None
+            if motor is not None:
+                commands[i] = (commands[i].replace("ctrl =", "target =", 1)
+                               + f"; ctrl = the {motor['model']} motor's torque toward it")
         return [{"action": name, "actuator": actuator, "command": command,
                  "unit": self.action_units.get(name, "")}
                 for name, actuator, command in zip(
                     self.action_names,
                     [actuator_name(self.model, i) for i in range(self.model.nu)],
-                    self.actuation.commands, strict=True)]
+                    commands, strict=True)]
 
     def update(self) -> None:
         self.robot.update()

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import importlib.util
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING
 
 import mujoco
@@ -37,10 +37,13 @@ class Sim:
     sensordata: torch.Tensor
     nthread: int | None = None  # CPU threads that step the physics, where a backend has them
 
-    def step(self, nstep: int, controls: torch.Tensor | None = None) -> None:
+    def step(self, nstep: int, controls: torch.Tensor | None = None,
+             substep: Callable[[int], None] | None = None) -> None:
         """Advance every env `nstep` physics steps holding `ctrl`, or given `controls`
         (`[nstep, num_envs, nu]`, a tensor the caller keeps and rewrites), each physics step's;
-        `ctrl` is then the last one's."""
+        `ctrl` is then the last one's. With `substep`, it is called with k before physics step
+        k and writes `ctrl` from the state then (torch code, on a GPU recorded into the step's
+        CUDA graph); `controls` is then not read."""
         raise NotImplementedError
 
     def reset_to_defaults(self, mask: torch.Tensor) -> None:

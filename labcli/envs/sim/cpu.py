@@ -184,7 +184,16 @@ class CpuSim(Sim):
         self.ctrl = torch.from_numpy(self._ctrl)
         self.sensordata = torch.from_numpy(self._sensordata)
 
-    def step(self, nstep: int, controls: torch.Tensor | None = None) -> None:
+    def step(self, nstep: int, controls: torch.Tensor | None = None,
+             substep: Callable[[int], None] | None = None) -> None:
+        if substep is None:
+            self._physics(nstep, controls)
+            return
+        for k in range(nstep):  # one rollout a physics step, the controls written between
+            substep(k)
+            self._physics(1, None)
+
+    def _physics(self, nstep: int, controls: torch.Tensor | None) -> None:
         if self._chunks is not None and nstep != self._chunks.board.nstep:
             raise ValueError(f"an env shard's sim steps {self._chunks.board.nstep} physics "
                              f"steps at a time, not {nstep}")

@@ -131,7 +131,7 @@ class WarpSim(Sim):
         if hasattr(self._m.opt, "warn_overflow"):  # lab counts them: no line per step
             self._m.opt.warn_overflow = 0
 
-        self._graphs: dict[object, wp.Graph | None] = {}
+        self._graphs: dict[object, wp.Graph | torch.cuda.CUDAGraph | None] = {}
         self._streams: dict[int, wp.Stream] = {}
         with compiling_notice(cache_dir), wp.ScopedDevice(self._wp_device):
             # One eager step compiles and loads the physics kernels; the eager reset of all
@@ -149,10 +149,16 @@ class WarpSim(Sim):
             return super().model_field(name)
         return field
 
-    def step(self, nstep: int, controls: torch.Tensor | None = None) -> None:
-        # A graph reads `controls` where it was when captured: one graph per tensor.
-        key = nstep if controls is None else (nstep, controls.data_ptr())
-        self._run(key, lambda: self._substeps(nstep, controls))
+    def step(self, nstep: int, controls: torch.Tensor | None = None,
+             substep: Callable[[int], None] | None = None) -> None:
+        if substep is not None:
+            # Torch code between the physics steps: a graph of torch's, one per function.
+            self._run((nstep, id(substep)), lambda: self._substeps(nstep, None, substep),
+                      with_torch=True)
+        else:
+            # A graph reads `controls` where it was when captured: one graph per tensor.
+            key = nstep if controls is None else (nstep, controls.data_ptr())
+            self._run(key, lambda: self._substeps(nstep, controls))
         if self._overflow is not None and self._overflow_names:
             flags = self._overflow
             hit = (flags[:, None] & self._overflow_bits).ne(0)
@@ -183,35 +189,57 @@ class WarpSim(Sim):
         self._graphs.clear()
 
     # internals -------------------------------------------------------------------------------
-    def _substeps(self, nstep: int, controls: torch.Tensor | None = None) -> None:
+    def _substeps(self, nstep: int, controls: torch.Tensor | None = None,
+                  substep: Callable[[int], None] | None = None) -> None:
         for k in range(nstep):
-            if controls is not None:
+            if substep is not None:
+                substep(k)
+            elif controls is not None:
                 wp.copy(self._d.ctrl, wp.from_torch(controls[k]))
             mjw.step(self._m, self._d)
 
     def _reset_masked(self) -> None:
         mjw.reset_data(self._m, self._d, reset=self._mask)
 
-    def _run(self, key: object, fn: Callable[[], None]) -> None:
+    def _run(self, key: object, fn: Callable[[], None], with_torch: bool = False) -> None:
         """Replay `fn`'s CUDA graph (captured on first use) on torch's current stream: torch's
         writes to `ctrl` or the mask before it and its reads of `qpos` after it stay in order,
         with no sync or event. Inside a torch CUDA graph capture (`torch.cuda.graph` around a
         whole env step, capture_error_mode="thread_local"), a graph cannot be launched, so
-        `fn`'s kernels are recorded into torch's graph instead."""
+        `fn`'s kernels are recorded into torch's graph instead. `with_torch`: `fn` runs torch
+        code too, which warp's capture would not record: it runs eagerly once (torch's
+        libraries set up outside a capture), then replays as a torch graph."""
         if not self._wp_device.is_cuda:  # warp's CPU device: debugging without a GPU only
             with wp.ScopedDevice(self._wp_device):
                 fn()
             return
         stream = self._torch_stream()
         if torch.cuda.is_current_stream_capturing():
-            with (wp.ScopedStream(stream, sync_enter=False),
-                  wp.ScopedCapture(stream=stream, external=True)):
-                fn()
+            self._record(fn)
             return
         graph = self._graphs.get(key)
-        if graph is None:
+        if graph is None and with_torch:
+            if key not in self._graphs:
+                self._graphs[key] = None  # eager this once
+                with wp.ScopedStream(stream, sync_enter=False):
+                    fn()
+                return
+            graph = self._graphs[key] = torch.cuda.CUDAGraph()
+            with torch.cuda.graph(graph, capture_error_mode="thread_local"):
+                self._record(fn)
+        elif graph is None:
             graph = self._graphs[key] = self._capture(fn)
-        wp.capture_launch(graph, stream=stream)
+        if isinstance(graph, torch.cuda.CUDAGraph):
+            graph.replay()
+        else:
+            wp.capture_launch(graph, stream=stream)
+
+    def _record(self, fn: Callable[[], None]) -> None:
+        """`fn`'s kernels into the torch graph being captured on the current stream."""
+        stream = self._torch_stream()
+        with (wp.ScopedStream(stream, sync_enter=False),
+              wp.ScopedCapture(stream=stream, external=True)):
+            fn()
 
     def _capture(self, fn: Callable[[], None]) -> wp.Graph | None:
         """Record `fn` as a CUDA graph on warp's own stream (capture cannot run on the legacy
