@@ -258,3 +258,36 @@ def test_exported_metadata_names_the_motor(tmp_path):
     meta = json.loads(next(tmp_path.rglob("policy.onnx.json")).read_text())
     joints = meta["deployment"]["joints"]
     assert joints[0]["motor"]["model"] == "ideal_pd" and "motor" not in joints[2]
+
+
+GAINS = ["env.events.actuator_gains.stiffness_range=[0.5,1.5]",
+         "env.events.actuator_gains.damping_range=[0.8,1.2]"]
+
+
+def test_randomized_gains_reach_the_motors_each_env_its_own():
+    # Hips as DC motors, knees as MuJoCo's servos: one event draws both, per env.
+    env = go1(8, f"{HIP}.model=dc_motor", *GAINS)
+    motors, nominal = env.task.motors, env.task.motors.gains
+    kp0 = torch.tensor([kp for kp, _ in nominal], dtype=torch.float64)
+    kd0 = torch.tensor([kd for _, kd in nominal], dtype=torch.float64)
+    ratio_kp, ratio_kd = motors.kp / kp0, motors.kd / kd0
+    assert ((ratio_kp >= 0.5) & (ratio_kp <= 1.5)).all()
+    assert ((ratio_kd >= 0.8 - 1e-12) & (ratio_kd <= 1.2 + 1e-12)).all()
+    assert len({tuple(row.tolist()) for row in motors.kp}) == 8
+    # The knees' servos are drawn in their models, as before.
+    knee_kp = [m.actuator_gainprm[2, 0] for m in env.sim.models]
+    assert len(set(knee_kp)) == 8
+    # The torque law uses each env's own gains.
+    set_joints(env, q=[0.0] * 4, qd=[0.0] * 4, target=[0.01] * 4)
+    env.task.substep(0)
+    assert torch.allclose(env.sim.ctrl[:, 0], motors.kp[:, 0] * 0.01)
+    # The export states the nominal gains.
+    assert env.task.deployment()["joints"][0]["stiffness"] == pytest.approx(float(kp0[0]))
+    # A resumed env has the gains it had.
+    twin = make_env("go1-flat", num_envs=8, seed=9, backend="cpu", device="cpu",
+                    overrides=[*BASE, f"{HIP}.model=dc_motor", *GAINS])
+    twin.resume_from(env.get_state())
+    twin.reset()
+    assert torch.equal(twin.task.motors.kp, motors.kp)
+    assert torch.equal(twin.task.motors.kd, motors.kd)
+    env.close(), twin.close()

@@ -130,7 +130,7 @@ class _ModelEvent:
         self.sim = task.sim
         self.values = task.sim.model_field(self.field)
         self.rows = torch.tensor(rows, dtype=torch.long, device=self.values.device)
-        self.draw = Uniform(task, ranges * len(rows))
+        self.draw = Uniform(task, ranges * self.column().shape[1])  # per row its ranges
         self.everyone = torch.ones(task.num_envs, dtype=torch.bool, device=self.values.device)
         self.base = self.column().clone()
         if mode == "reset":
@@ -243,7 +243,8 @@ class randomize_joint_armature(_JointEvent):  # noqa: N801
 
 class randomize_actuator_gains(_ModelEvent):  # noqa: N801
     """A position servo's force is kp (target - q) - kd qdot: MuJoCo's gain kp and biases -kp,
-    -kd. Its values are each actuator's (kp, kd)."""
+    -kd. Its values are each actuator's (kp, kd): the servos' in the model, then those of the
+    motors whose torques lab computes (`ExplicitMotors`' per-env gains)."""
 
     field = "actuator_gainprm"
     fields = ("actuator_gainprm", "actuator_biasprm")
@@ -251,22 +252,37 @@ class randomize_actuator_gains(_ModelEvent):  # noqa: N801
     operation = "scale"
 
     def __init__(self, task: RobotTask, cfg: c.RandomizeActuatorGains):
-        model = task.model
-        servos = [a for a in names.resolve(model, "actuator", cfg.actuators)
+        model, motors = task.model, task.motors
+        named = names.resolve(model, "actuator", cfg.actuators)
+        explicit = [k for a in named
+                    if motors is not None and (k := motors.column(a)) is not None]
+        servos = [a for a in named
                   if model.actuator_gaintype[a] == int(mujoco.mjtGain.mjGAIN_FIXED)
                   and model.actuator_biastype[a] == int(mujoco.mjtBias.mjBIAS_AFFINE)
                   and model.actuator_gainprm[a, 0] > 0
                   and model.actuator_biasprm[a, 1] == -model.actuator_gainprm[a, 0]]
-        if not servos:
-            raise LabError(f"actuators {cfg.actuators} name no position servo",
-                           "randomize_actuator_gains scales position actuators' kp and kd")
+        if not servos and not explicit:
+            raise LabError(f"actuators {cfg.actuators} name no position servo or motor model",
+                           "randomize_actuator_gains scales the PD gains of position "
+                           "actuators and of env.robot's ideal_pd and dc_motor groups")
         self.bias = task.sim.model_field("actuator_biasprm")
+        self.motors = motors
+        self.explicit = torch.tensor(explicit, dtype=torch.long, device=self.bias.device)
         super().__init__(task, servos, [cfg.stiffness_range, cfg.damping_range], cfg.mode)
 
     def column(self) -> torch.Tensor:
-        return torch.stack([self.values[:, self.rows, 0], -self.bias[:, self.rows, 2]], dim=-1)
+        servos = torch.stack([self.values[:, self.rows, 0], -self.bias[:, self.rows, 2]], dim=-1)
+        if not len(self.explicit):
+            return servos
+        motors = torch.stack([self.motors.kp[:, self.explicit], self.motors.kd[:, self.explicit]],
+                             dim=-1).to(servos.dtype)
+        return torch.cat([servos, motors], dim=1)
 
     def write(self, values: torch.Tensor) -> None:
-        self.values[:, self.rows, 0] = values[..., 0]
-        self.bias[:, self.rows, 1] = -values[..., 0]
-        self.bias[:, self.rows, 2] = -values[..., 1]
+        servos, motors = values[:, :len(self.rows)], values[:, len(self.rows):]
+        self.values[:, self.rows, 0] = servos[..., 0]
+        self.bias[:, self.rows, 1] = -servos[..., 0]
+        self.bias[:, self.rows, 2] = -servos[..., 1]
+        if len(self.explicit):
+            self.motors.kp[:, self.explicit] = motors[..., 0].to(self.motors.kp.dtype)
+            self.motors.kd[:, self.explicit] = motors[..., 1].to(self.motors.kd.dtype)

@@ -89,6 +89,9 @@ class ExplicitMotors:
     position targets the action term writes, `[num_envs, nu]`, or (a motor latency) each
     physics step's, `[decimation, num_envs, nu]` in `delayed`."""
 
+    # Per env: the gains, which `randomize_actuator_gains` may draw per env.
+    carried = ("kp", "kd")
+
     def __init__(self, task: RobotTask, targets: torch.Tensor,
                  delayed: torch.Tensor | None = None):
         robot = task.cfg.robot
@@ -116,8 +119,10 @@ class ExplicitMotors:
         def row(values: list[float]) -> torch.Tensor:
             return torch.tensor(values, dtype=dtype, device=dev)
 
-        gains = [g.gains(f, zeta) for g in chosen]
-        self.kp, self.kd = row([kp for kp, _ in gains]), row([kd for _, kd in gains])
+        self.gains = [g.gains(f, zeta) for g in chosen]  # nominal, as the export states them
+        n = sim.num_envs
+        self.kp = row([kp for kp, _ in self.gains]).expand(n, len(explicit)).contiguous()
+        self.kd = row([kd for _, kd in self.gains]).expand(n, len(explicit)).contiguous()
         self.effort = row([g.effort_limit for g in chosen])
         # An ideal PD has a flat torque-speed line: its effort at rest, no speed limit.
         self.saturation = row([g.effort_limit if g.model == "ideal_pd"
@@ -131,7 +136,6 @@ class ExplicitMotors:
                 assert group.network is not None  # the description's validator
                 self.nets[name] = _Net(task, group.network,
                                        [k for k, g in enumerate(self.groups) if g == name])
-        n = sim.num_envs
         self._q = torch.empty(n, len(explicit), dtype=dtype, device=dev)
         self._qd = torch.empty_like(self._q)
 
@@ -157,15 +161,19 @@ class ExplicitMotors:
         low = (self.saturation * (-1.0 - speed)).clamp_(max=0.0).maximum(-self.effort)
         return torque.clamp(low, high)
 
+    def column(self, actuator: int) -> int | None:
+        """Where actuator `actuator` is among the explicit ones; None: an implicit servo."""
+        where = (self.explicit == actuator).nonzero()
+        return int(where[0, 0]) if len(where) else None
+
     def describe(self, actuator: int) -> dict[str, object] | None:
         """What a deployer must know of actuator `actuator`'s model (None: an implicit servo):
-        its law's numbers, for the export's metadata."""
-        where = (self.explicit == actuator).nonzero()
-        if not len(where):
+        its law's numbers, nominal, for the export's metadata."""
+        k = self.column(actuator)
+        if k is None:
             return None
-        k = int(where[0, 0])
-        row: dict[str, object] = {"model": self.models[k], "stiffness": float(self.kp[k]),
-                                  "damping": float(self.kd[k])}
+        kp, kd = self.gains[k]
+        row: dict[str, object] = {"model": self.models[k], "stiffness": kp, "damping": kd}
         if self.models[k] != "ideal_pd":
             row |= {"saturation_effort": float(self.saturation[k]),
                     "velocity_limit": (None if math.isinf(self.velocity[k])

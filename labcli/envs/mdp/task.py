@@ -131,6 +131,16 @@ class RobotTask(Task):
         self.terrain = (TerrainGrid(self, cfg.terrain, cfg.episode_length_s)
                         if cfg.terrain is not None else None)
         self.actuation = impl_of(cfg.actions)(self, cfg.actions)
+        # The action term's position targets: the servos' controls, or what explicit motors
+        # turn into torques before each physics step (made before the terms: the gains' event
+        # draws theirs).
+        self.targets = sim.ctrl
+        self.motors: ExplicitMotors | None = None
+        if self.acts_each_physics_step(cfg):
+            self.targets = torch.zeros_like(sim.ctrl)
+            delay = getattr(self.actuation, "delay", None)
+            self.motors = ExplicitMotors(self, self.targets,
+                                         delay.controls if delay is not None else None)
         self.action_names = [self.robot.joint_names[i] for i in range(sim.model.nu)]
         # Commands first: the terms made after them find theirs (`command(name)`).
         self._commands = {name: Built(self, name, t) for name, t in cfg.commands.terms()}
@@ -169,14 +179,9 @@ class RobotTask(Task):
             self.controls = delay.controls
             self._term_resets.append(delay.reset)
             self._carriers.append(("actions/delay", delay))
-        # The action term's position targets: the servos' controls, or what explicit motors
-        # turn into torques before each physics step.
-        self.targets = sim.ctrl
-        self.motors: ExplicitMotors | None = None
-        if self.acts_each_physics_step(cfg):
-            self.targets = torch.zeros_like(sim.ctrl)
-            self.motors = ExplicitMotors(self, self.targets, self.controls)
+        if self.motors is not None:
             self.substep, self.controls = self.motors, None
+            self._carriers.append(("actions/motors", self.motors))
             for name, net in self.motors.nets.items():
                 self._term_resets.append(net.reset)
                 self._carriers.append((f"actions/net/{name}", net))
