@@ -291,3 +291,12 @@ def test_randomized_gains_reach_the_motors_each_env_its_own():
     assert torch.equal(twin.task.motors.kp, motors.kp)
     assert torch.equal(twin.task.motors.kd, motors.kd)
     env.close(), twin.close()
+
+
+def test_a_nets_joints_are_exported_as_position_targets_without_gains(tmp_path):
+    env = go1(1, *mlp(tmp_path / "net.pt"))
+    knee = env.task.deployment()["joints"][2]
+    assert knee["command"] == "position target"
+    assert knee["stiffness"] is None and knee["motor"]["model"] == "mlp"
+    assert knee["motor"]["network"]["input_idx"] == [0, 1, 2]
+    env.close()

@@ -51,7 +51,7 @@ def _joints(task: RobotTask) -> list[dict[str, Any]]:
             "joint": name, "actuator": actuator_name(model, i), "default_position": default[i],
             "stiffness": kp, "damping": kd, "effort_limit": _effort_limit(model, i),
             "action_scale": scale[i], "action_offset": offset[i],
-            "command": "position target" if kp is not None else "torque",
+            "command": "position target" if kp is not None or motor else "torque",
             **({"motor": motor} if motor else {})})
     return rows
 

@@ -172,7 +172,8 @@ class ExplicitMotors:
         k = self.column(actuator)
         if k is None:
             return None
-        kp, kd = self.gains[k]
+        # A net's torque is its own: no PD gains.
+        kp, kd = self.gains[k] if self.models[k] != "mlp" else (None, None)
         row: dict[str, object] = {"model": self.models[k], "stiffness": kp, "damping": kd}
         if self.models[k] != "ideal_pd":
             row |= {"saturation_effort": float(self.saturation[k]),
