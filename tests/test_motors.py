@@ -5,6 +5,7 @@ export's description and the plain-MuJoCo loop's law."""
 
 from __future__ import annotations
 
+import importlib.util
 import json
 import warnings
 
@@ -299,4 +300,23 @@ def test_a_nets_joints_are_exported_as_position_targets_without_gains(tmp_path):
     assert knee["command"] == "position target"
     assert knee["stiffness"] is None and knee["motor"]["model"] == "mlp"
     assert knee["motor"]["network"]["input_idx"] == [0, 1, 2]
+    env.close()
+
+
+@pytest.mark.gpu
+@pytest.mark.skipif(not (all(importlib.util.find_spec(m) for m in ("warp", "mujoco_warp"))
+                         and torch.cuda.is_available()),
+                    reason='needs a CUDA GPU and MuJoCo Warp (pip install -e ".[warp]")')
+def test_each_world_of_mujoco_warp_pulls_with_its_own_motor_gains():
+    env = make_env("go1-flat", num_envs=16, seed=0, backend="warp", device="cuda",
+                   overrides=[*BASE, *both("dc_motor"), *GAINS])
+    env.reset()
+    motors = env.task.motors
+    kp0 = torch.tensor([kp for kp, _ in motors.gains], device="cuda")
+    ratio = motors.kp / kp0
+    assert ((ratio >= 0.5 - 1e-5) & (ratio <= 1.5 + 1e-5)).all()
+    assert len(motors.kp.unique(dim=0)) == 16
+    for _ in range(10):  # the graphed step, replayed with each env's gains
+        env.step(torch.zeros(16, 12, device="cuda"))
+    assert torch.isfinite(env.sim.qpos).all()
     env.close()
