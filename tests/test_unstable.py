@@ -18,6 +18,7 @@ from labcli.envs import metrics
 from labcli.errors import TrainingDiverged
 from labcli.plugins import registry
 from labcli.runs import rundir
+from labcli.runs.context import physics_summary
 from labcli.runs.plot import read_scalars
 
 SMALL = testing.SMALL_AGENTS
@@ -185,3 +186,24 @@ def test_kept_states_of_a_killed_run_are_never_committed(tmp_path, monkeypatch):
         testing.train_small("sb3", tmp_path, 5, SMALL["sb3"], checkpoint="latest")
     assert "iteration 3:" in str(err.value) and "model_2.zip" in str(err.value)
     assert [c.iteration for c in registry.get_framework("sb3").checkpoints(run_dir)] == [2]
+
+
+def test_what_the_physics_warned_of_is_one_line_at_the_end(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    result = CliRunner().invoke(app, [
+        "train", "--task", "cartpole", "--framework", "rsl_rl", "--num-envs", "8",
+        "--max-iterations", "2", "--logs-dir", str(tmp_path), "--set", EXPLODING])
+    assert result.exit_code == 0, result.output
+    lines = [line for line in result.output.splitlines() if line.startswith("physics: ")]
+    assert len(lines) == 1 and "MuJoCo warned" in lines[0], result.output
+
+
+def test_the_end_line_names_each_overflow_and_the_setting_that_quiets_it():
+    line = physics_summary({"NEFC": 12.0, "LS_ITERATIONS": 3400.0, "ITERATIONS": 5.0}, 0, None)
+    assert line == (
+        "physics: MuJoCo Warp's ITERATIONS limit was reached in 5 env steps (its last iterate "
+        "kept; raise env.solver_iterations); MuJoCo Warp's LS_ITERATIONS limit was reached in "
+        "3,400 env steps (its last iterate kept; raise env.ls_iterations); MuJoCo Warp's NEFC "
+        "buffer overflowed in 12 env steps (those envs reset; raise env.nconmax or env.njmax); "
+        "per iteration in TensorBoard (sim/overflow/<name>)")
+    assert physics_summary({}, 0, None) is None

@@ -97,6 +97,9 @@ class RunContext(TrainContext):
     _boundary: dict[str, Any] | None = None
     _told_mujoco_warnings: bool = False
     _told_overflows: bool = False
+    # This run's totals of what the physics warned of, for the line at its end.
+    _overflow_totals: dict[str, float] = field(default_factory=dict)
+    _mujoco_warning_total: int = 0
     _networks: list[nn.Module] = field(default_factory=list)
     _actor: Actor | None = None
     # The largest action difference between a checkpoint's Policy and the live agent so far;
@@ -212,6 +215,7 @@ class RunContext(TrainContext):
 
     def _pop_mujoco_warnings(self) -> int:
         count = self.mujoco_warnings.pop()
+        self._mujoco_warning_total += count
         if count and not self._told_mujoco_warnings:
             self._told_mujoco_warnings = True
             self.progress.console.print(
@@ -223,6 +227,9 @@ class RunContext(TrainContext):
     def _note_overflows(self, stats: Mapping[str, float]) -> None:
         overflows = sorted(k.removeprefix(metrics.OVERFLOW) for k in stats
                            if k.startswith(metrics.OVERFLOW))
+        for name in overflows:
+            self._overflow_totals[name] = (self._overflow_totals.get(name, 0.0)
+                                           + stats[metrics.OVERFLOW + name])
         # A solver out of iterations kept its last iterate (counted only); a buffer that
         # overflowed lost contacts or constraints (those envs are reset).
         buffers = [k for k in overflows if "ITERATIONS" not in k]
@@ -232,6 +239,12 @@ class RunContext(TrainContext):
                 f"note: MuJoCo Warp's {', '.join(buffers)} buffer overflowed; the envs "
                 f"concerned are reset and counted ({metrics.OVERFLOW}<buffer>): raise "
                 "env.nconmax or env.njmax", highlight=False, soft_wrap=True)
+
+    def physics_summary(self) -> str | None:
+        """One line for the end of training: what the physics warned of this run (None if
+        nothing)."""
+        return physics_summary(self._overflow_totals, self._mujoco_warning_total,
+                               self.mujoco_warnings.first)
 
     def save(self, save: Save) -> None:
         """A complete checkpoint set of the current iteration (labcli/runs/checkpoints.py), with
@@ -334,3 +347,26 @@ class EpisodesSinceSave:
 def _finite(module: nn.Module) -> bool:
     return all(bool(torch.isfinite(t).all()) for t in module.state_dict().values()
                if t.is_floating_point())
+
+
+def physics_summary(overflows: Mapping[str, float], mujoco_warnings: int,
+                    first_warning: str | None) -> str | None:
+    """How often the physics warned in a run, by what, with the setting that would quiet each
+    (the counts per iteration are in TensorBoard); None if it never did."""
+    parts = []
+    for name, count in sorted(overflows.items()):
+        if "ITERATIONS" in name:
+            setting = "env.ls_iterations" if name.startswith("LS_") else "env.solver_iterations"
+            parts.append(f"MuJoCo Warp's {name} limit was reached in {count:,.0f} env steps "
+                         f"(its last iterate kept; raise {setting})")
+        else:
+            parts.append(f"MuJoCo Warp's {name} buffer overflowed in {count:,.0f} env steps "
+                         "(those envs reset; raise env.nconmax or env.njmax)")
+    if mujoco_warnings:
+        parts.append(f"MuJoCo warned {mujoco_warnings:,} times ('{first_warning}'; those envs "
+                     "reset)")
+    if not parts:
+        return None
+    tags = [f"{metrics.OVERFLOW}<name>"] * bool(overflows) + [metrics.MUJOCO_WARNINGS] * bool(
+        mujoco_warnings)
+    return f"physics: {'; '.join(parts)}; per iteration in TensorBoard ({', '.join(tags)})"

@@ -386,6 +386,8 @@ def _run_training(fw: Framework, env: Any, cfg: AgentConfig, run: rundir.Run,
             error = ctx.failed_on_networks(exc)
     finally:
         _close(writer, console)
+        if ranks.writer and (physics := ctx.physics_summary()) is not None:
+            console.print(physics, highlight=False, soft_wrap=True)
         summary = summary_of(state)
         if error is not None:
             summary["error"] = error.message
