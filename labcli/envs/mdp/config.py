@@ -743,12 +743,13 @@ class RandomizeJointArmature(JointModelEvent):
 class RandomizeActuatorGains(EventTerm):
     """Each named position servo's stiffness (kp) and damping (kd), scaled per env and
     actuator by draws from `stiffness_range` and `damping_range`: Isaac Lab's
-    `randomize_actuator_gains` with operation "scale", for MuJoCo's position actuators."""
+    `randomize_actuator_gains` with operation "scale", for MuJoCo's position actuators and the
+    PD law of a robot description's `ideal_pd` and `dc_motor` groups."""
 
     impl: ClassVar[str] = "labcli.envs.mdp.events:randomize_actuator_gains"
     mode: Literal["startup", "reset"] = "startup"
     actuators: list[str] = Field(default_factory=lambda: [".*"], min_length=1,
-                                 description="position actuators whose gains it scales")
+                                 description="actuators whose PD gains it scales")
     stiffness_range: Range = (1.0, 1.0)
     damping_range: Range = (1.0, 1.0)
 
