@@ -7,7 +7,8 @@ NumPy, MuJoCo and onnxruntime only (no torch, no lab env): `labcli.sim2sim.Plain
 export's metadata (`policy.onnx.json`) and model (`policy.mjb`), builds each observation from the
 robot's state as the metadata says (its kind, joints, clip and scale), runs the network, and
 sends each action to its joint's position servo as offset + scale × action, holding it for the
-metadata's decimation of physics steps. This script starts the robot standing in its default
+metadata's decimation of physics steps (where the metadata names a motor model, `ideal_pd` or
+`dc_motor`, the torque that model pulls toward that target, computed before each physics step). This script starts the robot standing in its default
 pose, gives it one velocity command and prints, each second, the velocity it keeps; `--viewer`
 shows it in MuJoCo's viewer in real time.
 """
