@@ -320,3 +320,23 @@ def test_each_world_of_mujoco_warp_pulls_with_its_own_motor_gains():
         env.step(torch.zeros(16, 12, device="cuda"))
     assert torch.isfinite(env.sim.qpos).all()
     env.close()
+
+
+def test_a_nets_run_exports_with_its_file_given_again_and_sim2sim_refuses_it(tmp_path):
+    logs, settings = tmp_path / "logs", mlp(tmp_path / "net.pt")
+    result = CliRunner().invoke(app, [
+        "train", "--task", "go1-flat", "--framework", "rsl_rl", "--num-envs", "2",
+        "--logs-dir", str(logs), "--set", "agent.max_iterations=1",
+        *[a for s in settings for a in ("--set", s)]])
+    assert result.exit_code == 0, result.output
+    # A run dir is data: the file its params name is opened only when the user names it.
+    export = ["export", "onnx", "--last", "--logs-dir", str(logs)]
+    result = CliRunner().invoke(app, export)
+    assert result.exit_code == 2 and "lab opens no file that a run dir names" in result.output
+    file = next(s for s in settings if ".network.file=" in s)
+    result = CliRunner().invoke(app, [*export, "--set", file])
+    assert result.exit_code == 0, result.output
+    result = CliRunner().invoke(app, ["sim2sim", "--last", "--logs-dir", str(logs),
+                                      "--episodes", "1"])
+    assert result.exit_code == 2, result.output
+    assert "learned actuator net" in result.output and "Traceback" not in result.output

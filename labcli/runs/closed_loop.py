@@ -101,8 +101,8 @@ def check(*, run_dir: Path | None = None, task: str | None = None,
     try:
         loop = PlainLoop(export)
     except ValueError as exc:
-        raise LabError(f"{export}: {exc}", "sim2sim reads the robot terms of velocity "
-                       "tasks") from None
+        raise LabError(f"{export}: {exc}", "sim2sim computes velocity tasks' observation "
+                       "terms and the ideal_pd and dc_motor motor models") from None
     # The plain loop sends each control and reads each sensor at once: lab's side too,
     # whatever latency the policy was trained under (the export's `actuator_delay_s` and
     # `training_delay_steps`).
