@@ -110,3 +110,31 @@ def test_a_replay_memory_of_other_observations_is_one_line(tmp_path):
 def test_a_buffer_smaller_than_one_step_of_the_envs_is_refused(tmp_path):
     with pytest.raises(LabError, match="agent.buffer_size=2 holds less than one step of 4 envs"):
         testing.train_small("skrl_sac", tmp_path, 1, [*SMALL, "agent.buffer_size=2"])
+
+
+def test_the_last_good_state_is_kept_without_the_memory_and_resumes_with_an_empty_one(
+        tmp_path, monkeypatch):
+    # The state kept after every iteration between checkpoints holds the agent only: the
+    # memory, rewritten whole at every save, would make each iteration slower as it fills.
+    from test_unstable import poison_update
+
+    from labcli.errors import TrainingDiverged
+
+    poison_update(monkeypatch, "skrl_sac", on_call=3)
+    with pytest.raises(TrainingDiverged):
+        testing.train_small("skrl_sac", tmp_path / "run", 10, [*SMALL, "agent.save_interval=10"])
+    monkeypatch.undo()
+    (run_dir,) = {p.parent for p in (tmp_path / "run").glob("*/cartpole/*/run.json")}
+    good = registry.get_framework("skrl_sac").checkpoints(run_dir)[-1]
+    assert good.iteration == 2 and not memory_path(good.path).exists()
+    loaded = {}
+    original = offpolicy.load_memory
+
+    def load(memory, checkpoint):
+        original(memory, checkpoint)
+        loaded.update(index=memory.memory_index, filled=memory.filled)
+
+    monkeypatch.setattr(offpolicy, "load_memory", load)
+    outcome = testing.train_small("skrl_sac", tmp_path / "run", 4, SMALL, checkpoint=good.path)
+    assert loaded == {"index": 0, "filled": False}
+    assert outcome.summary["iterations"] == 4

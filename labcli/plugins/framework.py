@@ -199,12 +199,16 @@ class TrainContext(abc.ABC):
 
     @abc.abstractmethod
     def end_iteration(self, iteration: int, steps: int, save: Save,
-                      scalars: Mapping[str, float] | None = None) -> bool:
+                      scalars: Mapping[str, float] | None = None, *,
+                      last_good: Save | None = None) -> bool:
         """After each rollout + update: `iteration` and `steps` (this rank's env's) done so
         far, counted on from a resumed checkpoint; `scalars` are the library's own figures
         (losses) by TensorBoard tag. Logs the common figures, updates progress, checkpoints
         through `save` when due. Returns True when training must end now: `max_iterations` is
-        reached or a stop was requested (on any rank); the checkpoint is written then."""
+        reached or a stop was requested (on any rank); the checkpoint is written then.
+        `last_good`: a lighter `save` for the state kept after every iteration between
+        checkpoints (a run that diverges ends with it), where `save` also writes what only an
+        exact resume needs and costs more than an iteration should (a replay memory)."""
 
     @abc.abstractmethod
     def save(self, save: Save) -> None:

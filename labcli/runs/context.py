@@ -139,7 +139,8 @@ class RunContext(TrainContext):
             snapshot.set_rng_state(self.resume_state["rng"])
 
     def end_iteration(self, iteration: int, steps: int, save: Save,
-                      scalars: Mapping[str, float] | None = None) -> bool:
+                      scalars: Mapping[str, float] | None = None, *,
+                      last_good: Save | None = None) -> bool:
         steps *= self.ranks.world_size  # each rank counts its own envs' steps
         now = time.perf_counter()
         t0, s0 = self._clock
@@ -160,7 +161,7 @@ class RunContext(TrainContext):
                           "iteration": iteration, "steps": steps}
         if self.ranks.writer:
             self.last_good.promote()
-            self.last_good.keep(iteration, self._boundary, save)
+            self.last_good.keep(iteration, self._boundary, last_good or save)
             self._note_overflows(stats)
             figures = {**stats, metrics.STEPS_PER_S: steps_per_s,
                        metrics.MUJOCO_WARNINGS: self._pop_mujoco_warnings(), **(scalars or {})}

@@ -145,10 +145,13 @@ class SkrlFramework(Framework):
         meta = {"observation_size": _size(env.observation_space),
                 "action_size": _size(env.action_space), **self.describe(cfg)}
 
-        def save(path: Path) -> None:
+        def save_agent(path: Path) -> None:
             modules = {name: module.state_dict()
                        for name, module in agent.checkpoint_modules.items()}
             torch.save({**modules, META: {**meta, "steps": steps}}, path)
+
+        def save(path: Path) -> None:
+            save_agent(path)
             self.save_beside(agent, path)
 
         agent.enable_training_mode(True)
@@ -162,7 +165,10 @@ class SkrlFramework(Framework):
             for iteration in range(ctx.start_iteration + 1, cfg.max_iterations + 1):
                 obs = _collect_and_update(agent, env, obs, ctx, iteration)
                 steps += cfg.rollouts * env.num_envs
-                if ctx.end_iteration(iteration, steps, save, _pop_tracking(agent)):
+                # The last good state kept each iteration: the agent without what is saved
+                # beside it (a replay memory, rewritten whole at every save).
+                if ctx.end_iteration(iteration, steps, save, _pop_tracking(agent),
+                                     last_good=save_agent):
                     break
 
     def actor(self, checkpoint: Path, saved: dict[str, Any], env: Any) -> nn.Module:

@@ -167,11 +167,13 @@ def save_memory(memory: RandomMemory, path: Path) -> None:
 
 
 def load_memory(memory: RandomMemory, checkpoint: Path) -> None:
-    """Refill `memory` from the file beside `checkpoint` (lab resumes only a checkpoint whose
-    files are all there). A resume with another env count keeps the newest transitions that
-    fill whole rows of the new layout; a LabError when they do not fit at all (another
-    observation or action size)."""
+    """Refill `memory` from the file beside `checkpoint`; without one (the last good state of
+    a run that diverged, which lab keeps without its memory) it starts empty. A resume with
+    another env count keeps the newest transitions that fill whole rows of the new layout; a
+    LabError when they do not fit at all (another observation or action size)."""
     path = memory_path(checkpoint)
+    if not path.exists() and not path.is_symlink():
+        return
     saved = read_torch_file(path, str(memory.device), what="replay memory")
     try:
         tensors, index, filled = saved["tensors"], saved["memory_index"], bool(saved["filled"])
