@@ -24,7 +24,7 @@ SPEC = FrameworkSpec(
 OFF_POLICY_DEFAULTS = {
     "cartpole": {"env": {"num_envs": 16}, "agent": {
         "max_iterations": 300, "rollouts": 32, "gradient_steps": 4, "hidden_sizes": [64, 64]}},
-    # On 2 cores, success 0.9 after a median 98 k steps and 122 s with SAC, 164 k and 290 s
+    # On 2 cores, success 0.9 after a median 98 k steps and 122 s with SAC, 154 k and 147 s
     # with TD3 (rsl_rl's PPO: 516 k and 110.5 s; docs/benchmarks.md).
     "ant": {"env": {"num_envs": 32}, "agent": {"max_iterations": 1000, "gradient_steps": 2}},
 }
