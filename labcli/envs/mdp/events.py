@@ -130,9 +130,9 @@ class _ModelEvent:
         self.sim = task.sim
         self.values = task.sim.model_field(self.field)
         self.rows = torch.tensor(rows, dtype=torch.long, device=self.values.device)
-        self.draw = Uniform(task, ranges * self.column().shape[1])  # per row its ranges
-        self.everyone = torch.ones(task.num_envs, dtype=torch.bool, device=self.values.device)
         self.base = self.column().clone()
+        self.draw = Uniform(task, ranges * self.base.shape[1])  # per row its ranges
+        self.everyone = torch.ones(task.num_envs, dtype=torch.bool, device=self.values.device)
         if mode == "reset":
             self.reset = self.apply
         else:  # RobotTask runs it once, at the env's first reset

@@ -106,6 +106,7 @@ class ExplicitMotors:
             groups.append(found)
         explicit = [i for i, (_, g) in enumerate(groups) if g.explicit]
         self.explicit = torch.tensor(explicit, device=dev)
+        self._columns = {actuator: k for k, actuator in enumerate(explicit)}
         self.implicit = torch.tensor([i for i, (_, g) in enumerate(groups) if not g.explicit],
                                      dtype=torch.long, device=dev)
         ids = [task.robot.joint_ids[i] for i in explicit]
@@ -163,8 +164,7 @@ class ExplicitMotors:
 
     def column(self, actuator: int) -> int | None:
         """Where actuator `actuator` is among the explicit ones; None: an implicit servo."""
-        where = (self.explicit == actuator).nonzero()
-        return int(where[0, 0]) if len(where) else None
+        return self._columns.get(actuator)
 
     def describe(self, actuator: int) -> dict[str, object] | None:
         """What a deployer must know of actuator `actuator`'s model (None: an implicit servo):

@@ -131,6 +131,7 @@ class RobotTask(Task):
         self.terrain = (TerrainGrid(self, cfg.terrain, cfg.episode_length_s)
                         if cfg.terrain is not None else None)
         self.actuation = impl_of(cfg.actions)(self, cfg.actions)
+        delay = getattr(self.actuation, "delay", None)
         # The action term's position targets: the servos' controls, or what explicit motors
         # turn into torques before each physics step (made before the terms: the gains' event
         # draws theirs).
@@ -138,7 +139,6 @@ class RobotTask(Task):
         self.motors: ExplicitMotors | None = None
         if self.acts_each_physics_step(cfg):
             self.targets = torch.zeros_like(sim.ctrl)
-            delay = getattr(self.actuation, "delay", None)
             self.motors = ExplicitMotors(self, self.targets,
                                          delay.controls if delay is not None else None)
         self.action_names = [self.robot.joint_names[i] for i in range(sim.model.nu)]
@@ -174,7 +174,6 @@ class RobotTask(Task):
                              if b.reset is not None and b not in self._events]
         self._term_resets += [s.reset for s in shared if hasattr(s, "reset")]
         self._carriers = [(b.name, b.made) for b in every if getattr(b.made, "carried", ())]
-        delay = getattr(self.actuation, "delay", None)
         if delay is not None:
             self.controls = delay.controls
             self._term_resets.append(delay.reset)
