@@ -39,6 +39,17 @@ def needs_menagerie(robot: str) -> pytest.MarkDecorator:
                               "export MENAGERIE_ROOT=$(../shared/menagerie/unpack))")
 
 
+def needs_warp() -> pytest.MarkDecorator:
+    """Skips a test where there is no CUDA GPU or MuJoCo Warp is not installed."""
+    import importlib.util
+
+    import torch
+
+    there = all(importlib.util.find_spec(m) for m in ("warp", "mujoco_warp"))
+    return pytest.mark.skipif(not (there and torch.cuda.is_available()),
+                              reason='needs a CUDA GPU and MuJoCo Warp (pip install -e ".[warp]")')
+
+
 @pytest.fixture
 def register_plugin() -> Iterator[Callable[[object, str], None]]:
     """Registers plugin objects (a class instance or a module) under a name, then removes them."""

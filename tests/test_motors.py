@@ -5,7 +5,6 @@ export's description and the plain-MuJoCo loop's law."""
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import warnings
 
@@ -13,7 +12,7 @@ import mujoco
 import numpy as np
 import pytest
 import torch
-from conftest import needs_menagerie
+from conftest import needs_menagerie, needs_warp
 from typer.testing import CliRunner
 
 from labcli.commands.app import app
@@ -304,9 +303,7 @@ def test_a_nets_joints_are_exported_as_position_targets_without_gains(tmp_path):
 
 
 @pytest.mark.gpu
-@pytest.mark.skipif(not (all(importlib.util.find_spec(m) for m in ("warp", "mujoco_warp"))
-                         and torch.cuda.is_available()),
-                    reason='needs a CUDA GPU and MuJoCo Warp (pip install -e ".[warp]")')
+@needs_warp()
 def test_each_world_of_mujoco_warp_pulls_with_its_own_motor_gains():
     env = make_env("go1-flat", num_envs=16, seed=0, backend="warp", device="cuda",
                    overrides=[*BASE, *both("dc_motor"), *GAINS])

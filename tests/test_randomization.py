@@ -6,11 +6,9 @@ held through each episode."""
 
 from __future__ import annotations
 
-import importlib.util
-
 import pytest
 import torch
-from conftest import needs_menagerie
+from conftest import needs_menagerie, needs_warp
 
 from labcli.errors import LabError
 from labcli.gym import make_env
@@ -126,9 +124,7 @@ def test_an_observation_bias_is_an_offset_held_through_each_episode():
 
 
 @pytest.mark.gpu
-@pytest.mark.skipif(not (all(importlib.util.find_spec(m) for m in ("warp", "mujoco_warp"))
-                         and torch.cuda.is_available()),
-                    reason='needs a CUDA GPU and MuJoCo Warp (pip install -e ".[warp]")')
+@needs_warp()
 def test_each_world_of_mujoco_warp_steps_with_its_own_gains_and_joints():
     env = go1(16, *GAINS, *JOINTS, backend="warp", device="cuda")
     kp = env.sim.model_field("actuator_gainprm")[:, :, 0].cpu()

@@ -5,14 +5,13 @@ against the rays, and a Go1 dropped on the hardest patch of each type standing o
 
 from __future__ import annotations
 
-import importlib.util
 from pathlib import Path
 
 import mujoco
 import numpy as np
 import pytest
 import torch
-from conftest import needs_menagerie
+from conftest import needs_menagerie, needs_warp
 from pydantic import ValidationError
 
 from labcli.envs.mdp import terrain as t
@@ -310,9 +309,7 @@ def test_a_height_scan_without_terrain_is_one_line():
 
 
 @pytest.mark.gpu
-@pytest.mark.skipif(not (all(importlib.util.find_spec(m) for m in ("warp", "mujoco_warp"))
-                         and torch.cuda.is_available()),
-                    reason='needs a CUDA GPU and MuJoCo Warp (pip install -e ".[warp]")')
+@needs_warp()
 @needs_menagerie("unitree_go1")
 def test_both_backends_stand_go1s_on_the_terrain_and_scan_it_alike():
     """MuJoCo Warp collides with the height fields and boxes as MuJoCo does: from the same
