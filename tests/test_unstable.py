@@ -17,7 +17,7 @@ from labcli.commands.app import app
 from labcli.envs import metrics
 from labcli.errors import TrainingDiverged
 from labcli.plugins import registry
-from labcli.runs import rundir
+from labcli.runs import checkpoints, rundir, snapshot
 from labcli.runs.context import physics_summary
 from labcli.runs.plot import read_scalars
 
@@ -123,7 +123,9 @@ def test_a_diverged_update_stops_training_and_keeps_the_last_good_checkpoint(
     good = fw.checkpoints(run_dir)[-1]
     assert good.iteration == 2 and good.path.name in message  # kept since, saved on failure
     assert finite_policy(name, good.path)
-    assert (run_dir / "state_2.pt").is_file()  # it resumes exactly, too
+    # It resumes exactly, too: iteration 2's env state, held in memory until now, beside it.
+    assert snapshot.load(run_dir / "state_2.pt")["iteration"] == 2
+    assert checkpoints.complete(fw, good)
     assert not list(run_dir.glob(".candidate")) and not list(run_dir.glob(".good"))
     summary = json.loads((run_dir / rundir.SUMMARY).read_text())
     assert summary["state"] == rundir.FAILED and summary["checkpoint"] == good.path.name

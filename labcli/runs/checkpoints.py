@@ -14,6 +14,7 @@ import errno
 import hashlib
 import json
 import os
+import shutil
 import tempfile
 import zipfile
 from collections.abc import Callable
@@ -45,13 +46,14 @@ def manifest_path(directory: Path, iteration: int) -> Path:
 def write(directory: Path, fw: FrameworkSpec, iteration: int, save: Callable[[Path], None],
           extra: Callable[[Path], None] | None = None,
           check: Callable[[Path], None] | None = None, below: Path | None = None,
-          figures: dict[str, float] | None = None) -> Checkpoint:
+          figures: dict[str, float] | None = None, durable: bool = True) -> Checkpoint:
     """Checkpoint `iteration` into `directory`: `save(path)` writes the framework's model at
     `path` (its final name, in a private staging directory) and any companions beside it;
     `extra(staging_dir)` adds lab's own files (the env state); `check(path)` may refuse the
     staged model by raising; then the set is published. Nothing is left behind when any of it
     fails. `directory` is a run dir, or (with `below`, the run dir) a directory inside one.
-    `figures` (SUCCESS, RETURN, EPISODES) go into the manifest."""
+    `figures` (SUCCESS, RETURN, EPISODES) go into the manifest. Not `durable`: the files are
+    not flushed to the disk (a checkpoint that only this process reads back)."""
     if below is not None:
         files.real_dir(directory, below=below)
     try:
@@ -69,7 +71,7 @@ def write(directory: Path, fw: FrameworkSpec, iteration: int, save: Callable[[Pa
                                    f"{model}")
             if check is not None:
                 check(model)
-            _publish(staging, directory, iteration, fw.name, figures)
+            _publish(staging, directory, iteration, fw.name, figures, durable)
         except (OSError, RuntimeError, LabError) as exc:
             # The staging dir is lab's own: gone, it was removed under lab, whatever the
             # library (or the check reading the model back) said of its missing file (`rm -rf`
@@ -95,14 +97,15 @@ def discard_staging(directory: Path) -> None:
 
 
 def _publish(staging: Path, directory: Path, iteration: int, framework: str,
-             figures: dict[str, float] | None) -> None:
+             figures: dict[str, float] | None, durable: bool) -> None:
     entries = {}
     for path in sorted(staging.iterdir()):
         if not path.is_symlink() and not path.exists():  # listed, then removed under lab
             raise FileNotFoundError(errno.ENOENT, os.strerror(errno.ENOENT), str(path))
         if path.is_symlink() or not path.is_file():
             raise RuntimeError(f"a checkpoint holds only files, not {path.name}")
-        files.fsync_file(path)
+        if durable:
+            files.fsync_file(path)
         entries[path.name] = {"bytes": path.stat().st_size, "sha256": _sha256(path)}
     for name in entries:
         (staging / name).chmod(files.FILE_MODE)
@@ -113,16 +116,17 @@ def _publish(staging: Path, directory: Path, iteration: int, framework: str,
                        below=directory)
 
 
-def move(source: Path, target: Path, iteration: int) -> None:
-    """Move the complete checkpoint `iteration` of `source` into `target`, manifest last."""
-    manifest = _read_manifest(manifest_path(source, iteration))
-    try:
-        for name in manifest["files"]:
-            (source / name).replace(target / name)
-    except OSError as exc:
-        raise files.unwritable(target, exc) from exc
-    manifest_path(source, iteration).replace(manifest_path(target, iteration))
-    files.fsync_dir(target)
+def rewrite(source: Path, fw: FrameworkSpec, iteration: int, target: Path,
+            extra: Callable[[Path], None] | None = None) -> Checkpoint:
+    """Write the complete checkpoint `iteration` of `source` again into the run dir `target`,
+    durably, with `extra`'s files added (as `write`'s)."""
+    names = _read_manifest(manifest_path(source, iteration))["files"]
+
+    def save(model: Path) -> None:
+        for name in names:
+            shutil.copyfile(source / name, model.parent / name)
+
+    return write(target, fw, iteration, save, extra)
 
 
 def _sha256(path: Path) -> str:

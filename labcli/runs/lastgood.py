@@ -1,10 +1,13 @@
 """The last good state of a run, kept between checkpoints so that a diverging run still ends
 with it on disk.
 
-After each iteration the agent is written to a hidden `.candidate/` dir of the run. The next
-iteration proves it: its rollout acted finitely, so the candidate becomes `.good/`. When training
-diverges, the newest proven state is moved into the run dir as an ordinary checkpoint (unless
-that iteration's checkpoint is there already); when training ends otherwise both are removed.
+After each iteration the agent is written to a hidden `.candidate/` dir of the run, not flushed
+to the disk, and the env's state (episodes in flight, generators) is held in memory: only this
+process reads them back, and writing the state every iteration cost a 4,096-env G1 run on the
+GPU a tenth of its time. The next iteration proves the candidate: its rollout acted finitely, so
+it becomes `.good/`. When training diverges, the newest proven state is written into the run dir
+as an ordinary checkpoint with its env state (unless that iteration's checkpoint is there
+already); when training ends otherwise both are removed.
 """
 
 from __future__ import annotations
@@ -23,14 +26,19 @@ CANDIDATE, GOOD = ".candidate", ".good"
 class LastGood:
     def __init__(self, run_dir: Path, framework: FrameworkSpec):
         self.run_dir, self.framework = run_dir, framework
+        self._states: dict[str, dict[str, Any]] = {}  # the env states, by dir name
 
     def keep(self, iteration: int, state: dict[str, Any] | None,
              save: Callable[[Path], None]) -> None:
-        """Write the agent after `iteration`'s update as the candidate, a complete checkpoint."""
+        """Write the agent after `iteration`'s update as the candidate, a complete checkpoint;
+        hold `state` (the env's and generators') with it."""
         candidate = self.run_dir / CANDIDATE
         files.remove(candidate)
-        extra = snapshot.writer(iteration, state) if state is not None else None
-        checkpoints.write(candidate, self.framework, iteration, save, extra, below=self.run_dir)
+        self._states.pop(CANDIDATE, None)
+        checkpoints.write(candidate, self.framework, iteration, save, below=self.run_dir,
+                          durable=False)
+        if state is not None:
+            self._states[CANDIDATE] = state
 
     def promote(self) -> None:
         """The candidate acted finitely for a whole rollout: it is the last good state now."""
@@ -38,19 +46,26 @@ class LastGood:
         if candidate.is_dir() and not candidate.is_symlink():
             files.remove(good)
             candidate.replace(good)
+            self._states.pop(GOOD, None)
+            if CANDIDATE in self._states:
+                self._states[GOOD] = self._states.pop(CANDIDATE)
 
     def commit(self, candidate_proven: bool) -> None:
-        """Move the newest proven state into the run dir as a checkpoint, unless that iteration
-        is checkpointed there already."""
-        kept = self.run_dir / (CANDIDATE if candidate_proven else GOOD)
+        """Write the newest proven state into the run dir as a checkpoint, unless that
+        iteration is checkpointed there already."""
+        name = CANDIDATE if candidate_proven else GOOD
+        kept = self.run_dir / name
         found = None
         if kept.is_dir() and not kept.is_symlink():
             found = checkpoints.latest_complete(self.framework, kept)
         if found is not None and not checkpoints.manifest_path(self.run_dir,
                                                                found.iteration).exists():
-            checkpoints.move(kept, self.run_dir, found.iteration)
+            state = self._states.get(name)
+            extra = snapshot.writer(found.iteration, state) if state is not None else None
+            checkpoints.rewrite(kept, self.framework, found.iteration, self.run_dir, extra)
         self.discard()
 
     def discard(self) -> None:
         for name in (CANDIDATE, GOOD):
             files.remove(self.run_dir / name)
+        self._states.clear()
