@@ -65,8 +65,12 @@ def test_play_video_goes_to_the_run_dir_and_is_flushed_when_play_ends(trained):
     # 2 episodes end after 15 steps: the 50-step recording is cut short, and still written.
     _, eps = play(episodes=2, run_dir=trained.run.dir, show=Show(video.VideoSettings(50, None)))
     (path,) = eps.videos
-    assert path == trained.run.dir / "videos" / "play" / "step-0.mp4"
+    assert path.parent.parent == trained.run.dir / "videos" / "play" and path.name == "step-0.mp4"
     assert eps.lengths == [15, 15] and len(frames(path)) == 15
+    # A second play keeps the first one's video.
+    _, again = play(episodes=1, run_dir=trained.run.dir, show=Show(video.VideoSettings(5, None)))
+    (second,) = again.videos
+    assert second.parent != path.parent and len(frames(path)) == 15 and len(frames(second)) == 5
 
 
 def test_sanity_agent_video_outside_any_run(tmp_path):

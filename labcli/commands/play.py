@@ -42,7 +42,7 @@ def play(
         help="Override an env setting (repeatable): with --agent any; for a trained run "
              "what its task lets play change, and a file its params name.")] = None,
     video: Annotated[bool, typer.Option(
-        "--video", help="Record env 0 as mp4 into <run>/videos/play/.")] = False,
+        "--video", help="Record env 0 as mp4 into <run>/videos/play/<time>/.")] = False,
     video_length: VideoLengthOpt = 200,
     viewer: Annotated[bool, typer.Option(
         "--viewer", help="Show env 0 in MuJoCo's viewer (needs a display).")] = False,

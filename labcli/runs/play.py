@@ -196,11 +196,10 @@ class Show:
 
 
 def _rollout_shown(env, act, episodes: int, seed: int, show: Show,
-                   root: Path, kind: str) -> Episodes:
-    """The rollout, shown as `show` says; videos go to `root`/videos/`kind`, where `root` is a
-    run dir, or a sanity agent's dir that is made for them."""
+                   root: Path, folder: Path) -> Episodes:
+    """The rollout, shown as `show` says; videos go to `folder` under `root`, a run dir or a
+    sanity agent's dir that is made for them."""
     recorder = None
-    folder = videos.folder(root, kind)
     if show.video is not None:
         # An unwritable place, or a link planted on the way, fails now, not after the rollout.
         files.real_dir(folder, below=files.user_dir(root))
@@ -215,6 +214,21 @@ def _rollout_shown(env, act, episodes: int, seed: int, show: Show,
             shown.close()  # writes the video; its owner closes the env again, harmlessly
     eps.videos = list(recorder.files) if recorder else []
     return eps
+
+
+def _stamp() -> str:
+    return datetime.now().strftime("%Y-%m-%d_%H-%M-%S")
+
+
+def _own_folder(run_dir: Path) -> Path:
+    """`<run>/videos/play/<time>/`: one play's videos, never written over by a later play's."""
+    parent = videos.folder(run_dir, videos.PLAY)
+    stamp = _stamp()
+    folder, n = parent / stamp, 1
+    while folder.exists():
+        n += 1
+        folder = parent / f"{stamp}_{n}"
+    return folder
 
 
 def _check_rollout(episodes: int, seed: int) -> None:
@@ -232,7 +246,7 @@ def play(*, episodes: int = 10, seed: int = 0, show: Show = Show(),
     loaded = load(seed=seed, **where)
     try:
         return loaded, _rollout_shown(loaded.env, loaded.policy, episodes, seed, show,
-                                      loaded.run.dir, videos.PLAY)
+                                      loaded.run.dir, _own_folder(loaded.run.dir))
     finally:
         loaded.env.close()
 
@@ -263,8 +277,8 @@ def sanity(task: str, agent: Agent | str, *, episodes: int = 10, seed: int = 0,
         return torch.rand(shape, generator=generator) * 2.0 - 1.0
 
     try:
-        stamp = datetime.now().strftime("%Y-%m-%d_%H-%M-%S")
-        root = (logs_dir or rundir.default_logs_dir()) / SANITY / task / f"{stamp}_{agent.value}"
-        return spec, _rollout_shown(env, act, episodes, seed, show, root, videos.PLAY)
+        root = (logs_dir or rundir.default_logs_dir()) / SANITY / task / f"{_stamp()}_{agent.value}"
+        return spec, _rollout_shown(env, act, episodes, seed, show, root,
+                                    videos.folder(root, videos.PLAY))
     finally:
         env.close()
