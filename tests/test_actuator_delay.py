@@ -103,7 +103,7 @@ def test_a_delay_range_out_of_order_is_one_line(delay):
         go1(2, json.dumps(delay))
 
 
-def test_play_tests_a_policy_under_a_latency_and_the_export_states_its_own(tmp_path):
+def test_play_sets_a_latency_or_a_command_and_the_export_states_the_latency(tmp_path):
     runner = CliRunner()
     env = {"LAB_LOGS_DIR": str(tmp_path), "COLUMNS": "300"}
     trained = runner.invoke(app, ["train", "--task", "go1-flat", "--framework", "rsl_rl",
@@ -113,7 +113,9 @@ def test_play_tests_a_policy_under_a_latency_and_the_export_states_its_own(tmp_p
     assert trained.exit_code == 0, trained.output
     played = runner.invoke(app, ["play", "--last", "--episodes", "2", "--num-envs", "2",
                                  "--set", "env.actions.delay=[0,12]",
-                                 "--set", "env.observations.joint_vel.delay=[0,2]"], env=env)
+                                 "--set", "env.observations.joint_vel.delay=[0,2]",
+                                 "--set", "env.commands.base_velocity.lin_vel_x=[0.5,0.5]"],
+                            env=env)
     assert played.exit_code == 0, played.output
     exported = runner.invoke(app, ["export", "onnx", "--last"], env=env)
     assert exported.exit_code == 0, exported.output
@@ -121,4 +123,7 @@ def test_play_tests_a_policy_under_a_latency_and_the_export_states_its_own(tmp_p
     assert json.loads(meta.read_text())["deployment"]["actuator_delay_s"] == [0.01, 0.03]
     wrong = runner.invoke(app, ["play", "--last", "--set", "env.actions.scale=1"], env=env)
     assert wrong.exit_code == 2
-    assert "env.actions.delay, env.observations.*.delay" in wrong.output
+    assert "env.actions.delay, env.commands.*.*, env.observations.*.delay" in wrong.output
+    removed = runner.invoke(app, ["play", "--last", "--set", "env.commands.base_velocity=null"],
+                            env=env)
+    assert removed.exit_code == 2 and "cannot change a run" in removed.output

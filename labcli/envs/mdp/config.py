@@ -836,8 +836,11 @@ class RobotTaskConfig(TaskConfig):
     `reward_weights`."""
 
     play_overrides: ClassVar[dict[str, Any]] = {"observation_noise": False}
+    # What play may ask of a trained policy: a latency, and what its commands ask (a command
+    # term's settings, e.g. its ranges; not the term itself, which the policy observes).
     play_settable: ClassVar[frozenset[str]] = frozenset({"actions.delay",
-                                                         "observations.*.delay"})
+                                                         "observations.*.delay",
+                                                         "commands.*.*"})
 
     robot: RobotDescription | None = Field(None, description="the robot's motors, gains and "
                                            "parts, written into the model; None: the MJCF's own")
