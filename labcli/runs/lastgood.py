@@ -3,11 +3,11 @@ with it on disk.
 
 After each iteration the agent is written to a hidden `.candidate/` dir of the run, not flushed
 to the disk, and the env's state (episodes in flight, generators) is held in memory: only this
-process reads them back, and writing the state every iteration cost a 4,096-env G1 run on the
-GPU a tenth of its time. The next iteration proves the candidate: its rollout acted finitely, so
-it becomes `.good/`. When training diverges, the newest proven state is written into the run dir
-as an ordinary checkpoint with its env state (unless that iteration's checkpoint is there
-already); when training ends otherwise both are removed.
+process reads them back (on the CPU, a 4,096-env G1 run kept it in 20 ms an iteration this way,
+62 ms with the state written and both flushed). The next iteration proves the candidate: its
+rollout acted finitely, so it becomes `.good/`. When training diverges, the newest proven state
+is written into the run dir as an ordinary checkpoint with its env state (unless that
+iteration's checkpoint is there already); when training ends otherwise both are removed.
 """
 
 from __future__ import annotations
