@@ -337,3 +337,22 @@ def test_a_nets_run_exports_with_its_file_given_again_and_sim2sim_refuses_it(tmp
                                       "--episodes", "1"])
     assert result.exit_code == 2, result.output
     assert "learned actuator net" in result.output and "Traceback" not in result.output
+
+
+def test_a_net_named_by_a_bare_name_is_still_a_file_a_run_dir_names(tmp_path, monkeypatch):
+    """A net's file resolves against the working directory: a run dir naming `net.pt` would
+    load whatever `net.pt` is there, so lab asks for it as for a path."""
+    monkeypatch.chdir(tmp_path)
+    settings = [s.replace(str(tmp_path / "net.pt"), "net.pt") for s in mlp(tmp_path / "net.pt")]
+    logs = tmp_path / "logs"
+    result = CliRunner().invoke(app, [
+        "train", "--task", "go1-flat", "--framework", "rsl_rl", "--num-envs", "2",
+        "--logs-dir", str(logs), "--set", "agent.max_iterations=1",
+        *[a for s in settings for a in ("--set", s)]])
+    assert result.exit_code == 0, result.output
+    play = ["play", "--last", "--logs-dir", str(logs), "--episodes", "1"]
+    result = CliRunner().invoke(app, play)
+    assert result.exit_code == 2 and "lab opens no file that a run dir names" in result.output
+    assert "network.file=net.pt" in result.output
+    result = CliRunner().invoke(app, [*play, "--set", f"{KNEE}.network.file=net.pt"])
+    assert result.exit_code == 0, result.output

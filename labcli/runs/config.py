@@ -147,6 +147,11 @@ def names_a_file(value: Any) -> bool:
             or value.lstrip().startswith("~") or value.strip() in (".", ".."))
 
 
+# Settings that always name a file that lab opens from the working directory, a bare name too
+# (a motor model's actuator net: `env.robot.actuators.<group>.network.file`).
+FILE_KEYS = frozenset({"file"})
+
+
 def named_files(data: Any, keys: tuple = ()) -> Iterable[tuple[tuple, Any]]:
     """Every value in `data` (nested mappings and lists) that names a file, with its keys."""
     if isinstance(data, Mapping):
@@ -155,7 +160,7 @@ def named_files(data: Any, keys: tuple = ()) -> Iterable[tuple[tuple, Any]]:
     elif isinstance(data, (list, tuple, set, frozenset)):
         for index, value in enumerate(data):
             yield from named_files(value, (*keys, index))
-    elif names_a_file(data):
+    elif names_a_file(data) or (keys and keys[-1] in FILE_KEYS and isinstance(data, str)):
         yield keys, data
 
 
