@@ -1,16 +1,20 @@
 """Robots whose base is not a free joint, built from the documented building blocks: a planar
 hopper (Gymnasium's Hopper's slide x, slide z and hinge y root joints) and a fixed two-link arm
-train on their joints' terms, and a term that needs a floating base is one line naming it."""
+train on their joints' terms, a term that needs a floating base is one line naming it, and a
+robot description's `base` agrees with its model."""
 
 from __future__ import annotations
 
 from typing import ClassVar
 
+import mujoco
 import pytest
 import torch
 
 from labcli.envs.env import LabVecEnv
 from labcli.envs.mdp import config as c
+from labcli.envs.mdp import robot_model
+from labcli.envs.mdp.description import Actuators, RobotDescription
 from labcli.envs.mdp.task import RobotTask
 from labcli.envs.spec import TaskSpec
 from labcli.errors import LabError
@@ -165,3 +169,44 @@ def test_a_term_that_needs_a_floating_base_says_so_in_one_line(tmp_path, setting
     message = str(err.value)
     assert "\n" not in message and "needs a floating base" in message, message
     assert "model 'planar_hopper' has none" in message, message
+
+
+def arm_description(base: str) -> RobotDescription:
+    return RobotDescription(base=base, actuators={"arm": Actuators(
+        joints=["shoulder", "elbow"], effort_limit=20.0, armature=0.01, stiffness=50.0,
+        damping=5.0)})
+
+
+def test_a_fixed_arm_s_description_says_so_and_is_written_into_its_model(tmp_path):
+    env = make(tmp_path, ARM, _Arm, robot=arm_description("fixed"))
+    try:
+        assert not env.task.robot.floating
+        assert env.sim.model.actuator_forcerange[:, 1].tolist() == [20.0, 20.0]
+        env.step(torch.zeros(4, 2))
+    finally:
+        env.close()
+
+
+@pytest.mark.parametrize(("xml", "base", "said"), [
+    (ARM, "floating", "env.robot.base is 'floating', but model 'two_link_arm' has no free joint"),
+    (HOPPER, "floating", "model 'planar_hopper' has no free joint"),
+], ids=["arm", "hopper"])
+def test_a_floating_description_of_a_model_without_a_free_joint_is_one_line(
+        tmp_path, xml, base, said):
+    config = _Arm if xml is ARM else _Joints
+    description = arm_description(base) if xml is ARM else RobotDescription(
+        base=base, actuators={"legs": Actuators(joints=["hip", "knee"], effort_limit=100.0,
+                                                armature=0.01, action_scale=1.0)})
+    with pytest.raises(LabError) as err:
+        make(tmp_path, xml, config, robot=description)
+    assert said in err.value.message and "\n" not in err.value.message
+    assert "env.robot.base=fixed" in err.value.hint
+
+
+def test_a_fixed_description_of_a_floating_robot_is_one_line():
+    spec = mujoco.MjSpec.from_string("""<mujoco model="box"><worldbody><body name="b">
+        <freejoint name="root"/><geom size="0.1"/></body></worldbody></mujoco>""")
+    with pytest.raises(LabError) as err:
+        robot_model.apply(spec, arm_description("fixed"))
+    assert err.value.message == ("env.robot.base is 'fixed', but model 'box' has a free joint "
+                                 "('root'): its base floats")

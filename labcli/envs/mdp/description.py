@@ -111,11 +111,13 @@ class Actuators(BaseModel):
 
 class RobotDescription(BaseModel):
     """What a task needs to know of its robot beyond the MJCF, in one place a user can read and
-    change. `base`: how the robot's root moves (floating: a free joint, as legged robots)."""
+    change. `base`: how the robot's root moves: `floating`, a free joint (legged robots);
+    `planar`, slide and hinge joints in a plane (Hopper, Walker2d); `fixed`, bolted to the world
+    (an arm). The model must agree: a floating base has a free joint, the others none."""
 
     model_config = ConfigDict(extra="forbid", validate_assignment=True, allow_inf_nan=False)
 
-    base: Literal["floating"] = "floating"
+    base: Literal["floating", "planar", "fixed"] = "floating"
     natural_frequency_hz: float = Field(10.0, gt=0, description="of the derived PD gains")
     damping_ratio: float = Field(2.0, gt=0, description="of the derived PD gains")
     actuators: dict[str, Actuators] = Field(min_length=1, description="by motor: the first "

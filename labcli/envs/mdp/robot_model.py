@@ -14,6 +14,7 @@ from labcli.errors import LabError
 
 
 def apply(spec: mujoco.MjSpec, robot: RobotDescription) -> None:
+    _check_base(spec, robot)
     f, zeta = robot.natural_frequency_hz, robot.damping_ratio
     for actuator in spec.actuators:
         joint = spec.joint(actuator.target)
@@ -62,6 +63,20 @@ def apply(spec: mujoco.MjSpec, robot: RobotDescription) -> None:
         for pair in list(spec.pairs):
             if not any(re.fullmatch(p, pair.name) for p in robot.contact_pairs):
                 spec.delete(pair)
+
+
+def _check_base(spec: mujoco.MjSpec, robot: RobotDescription) -> None:
+    free = [j.name or "(unnamed)" for j in spec.joints if j.type == mujoco.mjtJoint.mjJNT_FREE]
+    if (robot.base == "floating") == bool(free):
+        return
+    model = spec.modelname or "(unnamed)"
+    if free:
+        raise LabError(f"env.robot.base is '{robot.base}', but model '{model}' has a free joint "
+                       f"('{free[0]}'): its base floats",
+                       "set env.robot.base=floating, or describe a model bolted to the world")
+    raise LabError(f"env.robot.base is 'floating', but model '{model}' has no free joint",
+                   "set env.robot.base=fixed (bolted to the world) or planar (slide and hinge "
+                   "joints in a plane)")
 
 
 def action_scales(robot: RobotDescription, joints: list[str]) -> list[float]:
