@@ -5,11 +5,13 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
+import mujoco
 import torch
 
 from labcli.envs.mdp import config as c
-from labcli.envs.mdp import math
+from labcli.envs.mdp import math, names, sensors
 from labcli.envs.mdp.events import Uniform
+from labcli.errors import LabError
 
 if TYPE_CHECKING:
     from labcli.envs.mdp.task import RobotTask
@@ -139,3 +141,86 @@ class UniformVelocityCommand:
             rate = (error * cfg.heading_control_stiffness).clamp(*cfg.ang_vel_z)
             torch.where(self.heading_env, rate, self._yaw_rate, out=self._yaw_rate)
         self.command.masked_fill_(self._standing, 0.0)
+
+
+class UniformPoseCommand:
+    """`command` `[n, 7]`: the site's target position (m) and orientation (unit quaternion w, x,
+    y, z) in the base body's frame; the site's own pose from frame sensors the task adds.
+
+    A fixed base's body does not move: its pose is read once from the model's kinematics at
+    qpos0. The errors are computed once per state (rewards and success read them)."""
+
+    names = ["pos_x", "pos_y", "pos_z", "quat_w", "quat_x", "quat_y", "quat_z"]
+    units = ["m, base frame"] * 3 + ["unit quaternion, base frame"] * 4
+    carried = ("command", "time_left")
+
+    @staticmethod
+    def sensors(model: mujoco.MjModel, cfg: c.UniformPoseCommand) -> list[sensors.Sensor]:
+        return [sensors.frame("framepos", "site", cfg.site),
+                sensors.frame("framequat", "site", cfg.site)]
+
+    def __init__(self, task: RobotTask, cfg: c.UniformPoseCommand):
+        if task.robot.floating:
+            raise LabError(f"a pose command's frame is a fixed base's body ('{cfg.base_body}'), "
+                           f"and model '{names.model_name(task.model)}' floats (a free joint)",
+                           "command a site of a fixed robot (env.robot.base: fixed)")
+        self.task, self.cfg, self.robot = task, cfg, task.robot
+        n, like = task.num_envs, task.ones
+        self.command = like.new_zeros(n, 7)
+        self.command[:, 3] = 1.0
+        self.time_left = like.new_zeros(n)
+        self.draw = Uniform(task, [cfg.pos_x, cfg.pos_y, cfg.pos_z, cfg.roll, cfg.pitch,
+                                   cfg.yaw, cfg.resampling_time_range])
+        body = names.resolve_one(task.model, "body", cfg.base_body)
+        data = mujoco.MjData(task.model)
+        mujoco.mj_kinematics(task.model, data)
+        self._base_pos = task.tiled(data.xpos[body].tolist())
+        self._base_quat = task.tiled(data.xquat[body].tolist())
+        self._base_quat_inverse = task.tiled((data.xquat[body] * [1, -1, -1, -1]).tolist())
+        self._site = sensors.columns(task, [[s.name for s in self.sensors(task.model, cfg)]])
+        self._target_pos, self._target_quat = self.command[:, :3], self.command[:, 3:]
+
+    def __call__(self) -> torch.Tensor:
+        return self.command
+
+    def site_pose(self) -> tuple[torch.Tensor, torch.Tensor]:
+        """The site's position `[n, 3]` and orientation `[n, 4]` in the base's frame."""
+        def compute() -> torch.Tensor:
+            pose = self._site()
+            pos = math.quat_apply_inverse(self._base_quat, pose[:, :3] - self._base_pos)
+            return torch.cat((pos, math.quat_mul(self._base_quat_inverse, pose[:, 3:])), dim=1)
+        pose = self.robot.per_state(("site_pose", self), compute)
+        return pose[:, :3], pose[:, 3:]
+
+    def position_error(self) -> torch.Tensor:
+        """The distance (m) from the site to its target position, `[n]`, once per state."""
+        return self.robot.per_state(("position_error", self), lambda: torch.linalg.vector_norm(
+            self._target_pos - self.site_pose()[0], dim=1))
+
+    def orientation_error(self) -> torch.Tensor:
+        """The rotation angle (rad) from the site's orientation to the target's, `[n]`."""
+        def compute() -> torch.Tensor:
+            dot = (self._target_quat * self.site_pose()[1]).sum(dim=1).abs().clamp_(max=1.0)
+            return torch.acos(dot).mul_(2.0)
+        return self.robot.per_state(("orientation_error", self), compute)
+
+    def reset(self, mask: torch.Tensor) -> None:
+        self._resample(mask)
+
+    def after_step(self) -> None:
+        self.time_left.sub_(self.task.step_dt)
+        expired = self.time_left <= 0.0
+        with self.task.rng.only_for(expired) as some:
+            if some:
+                self._resample(expired)
+
+    def metrics(self) -> dict[str, torch.Tensor]:
+        return {"position_error": self.position_error(),
+                "orientation_error": self.orientation_error()}
+
+    def _resample(self, mask: torch.Tensor) -> None:
+        drawn = self.draw()
+        quat = math.quat_from_rpy(drawn[:, 3], drawn[:, 4], drawn[:, 5])
+        target = torch.cat((drawn[:, :3], quat), dim=1)
+        torch.where(mask[:, None], target, self.command, out=self.command)
+        torch.where(mask, drawn[:, 6], self.time_left, out=self.time_left)

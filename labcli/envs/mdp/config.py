@@ -82,10 +82,34 @@ class UniformVelocityCommand(RangeChecked):
     error_window: float = Field(0.0, ge=0.0)
 
 
+class UniformPoseCommand(RangeChecked):
+    """Isaac Lab's UniformPoseCommand: a target pose for a site (an end effector), in the frame
+    of the fixed base's body `base_body`: a position drawn in the box of `pos_x`, `pos_y`,
+    `pos_z` (m) and an orientation of a roll, pitch and yaw (rad, extrinsic x-y-z) drawn in
+    theirs, per env at reset and every `resampling_time_range` s. The command is the position
+    and the unit quaternion (w, x, y, z). Logs each episode's final position and orientation
+    errors as Metrics/<name>/position_error (m) and .../orientation_error (rad)."""
+
+    impl: ClassVar[str] = "labcli.envs.mdp.commands:UniformPoseCommand"
+    site: str = Field(min_length=1, description="the site whose pose is commanded")
+    base_body: str = Field(min_length=1, description="the fixed base's body: the frame")
+    resampling_time_range: Range = (4.0, 4.0)
+    pos_x: Range = (0.35, 0.65)
+    pos_y: Range = (-0.2, 0.2)
+    pos_z: Range = (0.15, 0.5)
+    roll: Range = (0.0, 0.0)
+    pitch: Range = (math.pi, math.pi)
+    yaw: Range = (-math.pi, math.pi)
+
+
 class CommandRef(Term):
     """A term about one of the task's commands, by its name in env.commands."""
 
     command: str = "base_velocity"
+
+
+class PoseCommandRef(CommandRef):
+    command: str = "ee_pose"
 
 
 # observations ---------------------------------------------------------------------------------
@@ -344,6 +368,34 @@ class JointTorquesL2(RewardTerm):
     """sum of squared actuator torques at the joints (N m), from MuJoCo actuator-force sensors."""
 
     impl: ClassVar[str] = "labcli.envs.mdp.rewards:joint_torques_l2"
+
+
+class JointVelL2(RewardTerm):
+    """sum of squared joint velocities ((rad/s)^2): Isaac Lab's `joint_vel_l2`."""
+
+    impl: ClassVar[str] = "labcli.envs.mdp.rewards:joint_vel_l2"
+
+
+class PositionCommandError(PoseCommandRef, RewardTerm):
+    """The distance (m) from the commanded site to its target position: Isaac Lab's
+    `position_command_error`."""
+
+    impl: ClassVar[str] = "labcli.envs.mdp.rewards:position_command_error"
+
+
+class PositionCommandErrorTanh(PoseCommandRef, RewardTerm):
+    """1 - tanh(distance to the target position / std): Isaac Lab's
+    `position_command_error_tanh`, which rewards the last centimetres."""
+
+    impl: ClassVar[str] = "labcli.envs.mdp.rewards:position_command_error_tanh"
+    std: float = Field(0.1, gt=0, description="m")
+
+
+class OrientationCommandError(PoseCommandRef, RewardTerm):
+    """The angle (rad) between the site's orientation and the target's: Isaac Lab's
+    `orientation_command_error`."""
+
+    impl: ClassVar[str] = "labcli.envs.mdp.rewards:orientation_command_error"
 
 
 class JointAccL2(RewardTerm):
@@ -807,6 +859,16 @@ class TrackedCommand(CommandRef):
     impl: ClassVar[str] = "labcli.envs.mdp.success:tracked_command"
     lin_vel_error: float = Field(0.25, gt=0)
     ang_vel_error: float = Field(0.3, gt=0)
+
+
+class PoseReached(PoseCommandRef):
+    """An episode that reached its time-out with the commanded site within `position_error`
+    (m) of its target position and, unless None, `orientation_error` (rad) of its
+    orientation succeeded."""
+
+    impl: ClassVar[str] = "labcli.envs.mdp.success:pose_reached"
+    position_error: float = Field(0.05, gt=0)
+    orientation_error: float | None = Field(None, gt=0)
 
 
 # the task ---------------------------------------------------------------------------------------

@@ -127,6 +127,13 @@ class RobotDescription(BaseModel):
                                   "with the ground are the feet's")
     contact_pairs: Patterns | None = Field(None, description="the model's explicit contact "
                                            "pairs to keep, by name; None: all of them")
+    gravity_compensation: bool = Field(False, description="the robot's bodies weigh nothing "
+                                       "on its joints (MuJoCo's gravcomp), as a Franka's own "
+                                       "controller cancels gravity; what it holds still weighs")
+    home: dict[str, float] | None = Field(None, description="the default pose: joint "
+                                          "positions (rad, m) by name or pattern, written as "
+                                          "the model's keyframe 'home' (the others at qpos0); "
+                                          "None: the model's own keyframes")
 
     @model_validator(mode="after")
     def _scales_finite(self) -> RobotDescription:

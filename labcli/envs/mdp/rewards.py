@@ -59,6 +59,34 @@ def action_rate_l2(task: RobotTask, cfg: c.ActionRateL2) -> torch.Tensor:
     return (task.action - task.previous_action).square().sum(dim=1)
 
 
+def joint_vel_l2(task: RobotTask, cfg: c.JointVelL2) -> torch.Tensor:
+    return task.robot.joint_vel.square().sum(dim=1)
+
+
+class position_command_error:  # noqa: N801 - a term, named as Isaac Lab's
+    def __init__(self, task: RobotTask, cfg: c.PositionCommandError):
+        self.command = task.command(cfg.command)
+
+    def __call__(self) -> torch.Tensor:
+        return self.command.position_error()
+
+
+class position_command_error_tanh:  # noqa: N801
+    def __init__(self, task: RobotTask, cfg: c.PositionCommandErrorTanh):
+        self.command, self.inv_std = task.command(cfg.command), 1.0 / cfg.std
+
+    def __call__(self) -> torch.Tensor:
+        return 1.0 - torch.tanh(self.command.position_error() * self.inv_std)
+
+
+class orientation_command_error:  # noqa: N801
+    def __init__(self, task: RobotTask, cfg: c.OrientationCommandError):
+        self.command = task.command(cfg.command)
+
+    def __call__(self) -> torch.Tensor:
+        return self.command.orientation_error()
+
+
 def power_consumption(task: RobotTask, cfg: c.Energy) -> torch.Tensor:
     r = task.robot
     return (task.action * r.joint_vel * r.gear_ratio_scaled).abs().sum(dim=1)

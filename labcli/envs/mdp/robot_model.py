@@ -63,6 +63,49 @@ def apply(spec: mujoco.MjSpec, robot: RobotDescription) -> None:
         for pair in list(spec.pairs):
             if not any(re.fullmatch(p, pair.name) for p in robot.contact_pairs):
                 spec.delete(pair)
+    if robot.gravity_compensation or robot.home is not None:
+        model = spec.compile()
+        if robot.gravity_compensation:
+            _compensate_gravity(spec, model)
+        if robot.home is not None:
+            _write_home(spec, model, robot.home)
+
+
+def _compensate_gravity(spec: mujoco.MjSpec, model: mujoco.MjModel) -> None:
+    """Every body of the robot (the tree from the world's child that holds its actuated
+    joints) weightless on its joints."""
+    roots = {int(model.body_rootid[model.jnt_bodyid[model.actuator_trnid[a, 0]]])
+             for a in range(model.nu)}
+    bodies = spec.bodies  # the compiled model's order: the world first, then depth first
+    for body in range(1, model.nbody):
+        if int(model.body_rootid[body]) in roots:
+            bodies[body].gravcomp = 1.0
+
+
+HOME = "home"
+
+
+def _write_home(spec: mujoco.MjSpec, model: mujoco.MjModel, home: dict[str, float]) -> None:
+    """The keyframe `home`: qpos0 with the joints `home` names at its positions (a model's own
+    `home` replaced)."""
+    qpos = model.qpos0.copy()
+    joints = [model.joint(j) for j in range(model.njnt)]
+    for pattern, value in home.items():
+        matched = [j for j in joints if re.fullmatch(pattern, j.name)]
+        if not matched:
+            raise LabError(f"env.robot.home's '{pattern}' matches no joint of model "
+                           f"'{spec.modelname}'",
+                           f"name one of {', '.join(j.name for j in joints if j.name)}")
+        for joint in matched:
+            if int(model.jnt_type[joint.id]) not in (int(mujoco.mjtJoint.mjJNT_HINGE),
+                                                     int(mujoco.mjtJoint.mjJNT_SLIDE)):
+                raise LabError(f"env.robot.home's '{pattern}' matches joint '{joint.name}', "
+                               "which is not a hinge or slide", "name hinge or slide joints")
+            qpos[model.jnt_qposadr[joint.id]] = value
+    for key in list(spec.keys):
+        if key.name == HOME:
+            spec.delete(key)
+    spec.add_key(name=HOME, qpos=qpos.tolist())
 
 
 def _check_base(spec: mujoco.MjSpec, robot: RobotDescription) -> None:

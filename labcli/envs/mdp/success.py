@@ -39,3 +39,14 @@ class tracked_command:  # noqa: N801
         errors = self.command.mean_errors
         return ((errors[:, 0] < self.cfg.lin_vel_error)
                 & (errors[:, 1] < self.cfg.ang_vel_error))
+
+
+class pose_reached:  # noqa: N801
+    def __init__(self, task: RobotTask, cfg: c.PoseReached):
+        self.command, self.cfg = task.command(cfg.command), cfg
+
+    def __call__(self) -> torch.Tensor:
+        reached = self.command.position_error() < self.cfg.position_error
+        if self.cfg.orientation_error is not None:
+            reached &= self.command.orientation_error() < self.cfg.orientation_error
+        return reached
