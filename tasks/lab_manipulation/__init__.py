@@ -1,0 +1,1 @@
+"""lab's manipulation tasks: arms on MuJoCo Menagerie's models."""

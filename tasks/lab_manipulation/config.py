@@ -1,0 +1,63 @@
+"""The manipulation tasks' settings: Isaac Lab's manager-based recipes in lab's terms."""
+
+from __future__ import annotations
+
+import math
+
+from pydantic import Field
+
+from lab_manipulation.panda import ROBOT as PANDA
+from labcli.envs.mdp import config as c
+from labcli.envs.mdp.description import RobotDescription
+
+# Isaac Lab's Isaac-Reach-Franka-v0 (manipulation/reach/reach_env_cfg.py with
+# config/franka/joint_pos_env_cfg.py): the hand's pose commanded in a box in front of the arm,
+# pointing down at a random yaw, drawn again every 4 s of a 12 s episode.
+
+
+class ReachCommands(c.Group):
+    ee_pose: c.UniformPoseCommand | None = c.UniformPoseCommand(
+        site="gripper", base_body="link0", resampling_time_range=(4.0, 4.0),
+        pos_x=(0.35, 0.65), pos_y=(-0.2, 0.2), pos_z=(0.15, 0.5), roll=(0.0, 0.0),
+        pitch=(math.pi, math.pi), yaw=(-math.pi, math.pi))
+
+
+class ReachObservations(c.Group):
+    joint_pos: c.JointPos | None = c.JointPos(noise=0.01)
+    joint_vel: c.JointVel | None = c.JointVel(noise=0.01)
+    pose_command: c.GeneratedCommands | None = c.GeneratedCommands(command="ee_pose")
+    actions: c.LastAction | None = c.LastAction()
+
+
+class ReachRewards(c.Group):
+    end_effector_position_tracking: c.PositionCommandError | None = c.PositionCommandError(
+        weight=-0.2)
+    end_effector_position_tracking_fine_grained: c.PositionCommandErrorTanh | None = (
+        c.PositionCommandErrorTanh(weight=0.1, std=0.1))
+    end_effector_orientation_tracking: c.OrientationCommandError | None = (
+        c.OrientationCommandError(weight=-0.1))
+    action_rate: c.ActionRateL2 | None = c.ActionRateL2(weight=-0.0001)
+    joint_vel: c.JointVelL2 | None = c.JointVelL2(weight=-0.0001)
+
+
+class ReachEvents(c.Group):
+    reset_robot_joints: c.ResetJointsByScale | None = c.ResetJointsByScale(
+        position_range=(0.5, 1.5), velocity_range=(0.0, 0.0))
+
+
+class PandaReachConfig(c.RobotTaskConfig):
+    robot: RobotDescription | None = PANDA
+    num_envs: int = Field(256, gt=0, le=2**20, description="parallel environments")
+    episode_length_s: float = Field(12.0, gt=0, le=1e6, description="time-out, in seconds")
+    # Isaac Lab's control at 30 Hz: 4 physics steps of 1/120 s.
+    sim_dt: float | None = Field(1.0 / 120.0, gt=0, description="physics step")
+    decimation: int = Field(4, gt=0, le=1000, description="physics steps per env step")
+    actions: c.JointPosition = c.JointPosition(scale=None)
+    # Isaac Lab does not clip: a target's yaw may need the wrist turned several scales away.
+    clip_actions: float = 100.0
+    commands: ReachCommands = ReachCommands()
+    observations: ReachObservations = ReachObservations()
+    rewards: ReachRewards = ReachRewards()
+    events: ReachEvents = ReachEvents()
+    success: c.PoseReached | None = c.PoseReached(position_error=0.05, orientation_error=0.35)
+    rewards_per_second: bool = True

@@ -1,0 +1,35 @@
+"""Franka Emika Panda from MuJoCo Menagerie (`franka_emika_panda`, entry `mjx_scene`: the arm
+with its hand on a floor, simplified collision geoms), bolted to the world at `link0`. Its
+servos keep Menagerie's gains (kp 1000 / 750 / 300 and kv 20 / 4 / 2 by joint pair) and its
+joints Franka's torque and speed limits; the default pose is Isaac Lab's (FRANKA_PANDA_CFG's
+init_state), the hand open. The arm's own weight is compensated, as Franka's controller does
+(Isaac Lab turns gravity off for its Panda); what it holds still weighs."""
+
+from labcli.envs.mdp.description import Actuators, RobotDescription
+from labcli.envs.spec import Menagerie
+
+MODEL = Menagerie("franka_emika_panda", "mjx_scene")
+ARMATURE = 0.1  # Menagerie's, for every arm joint
+# Isaac Lab's action scale: 0.5 rad per unit of action, from the default pose.
+ARM_SCALE = 0.5
+
+ROBOT = RobotDescription(
+    base="fixed",
+    gravity_compensation=True,
+    actuators={
+        "shoulder": Actuators(joints=["joint[12]"], effort_limit=87.0, velocity_limit=2.175,
+                              armature=ARMATURE, stiffness=1000.0, damping=20.0,
+                              action_scale=ARM_SCALE),
+        "elbow": Actuators(joints=["joint[34]"], effort_limit=87.0, velocity_limit=2.175,
+                           armature=ARMATURE, stiffness=750.0, damping=4.0,
+                           action_scale=ARM_SCALE),
+        "forearm": Actuators(joints=["joint[567]"], effort_limit=12.0, velocity_limit=2.61,
+                             armature=ARMATURE, stiffness=300.0, damping=2.0,
+                             action_scale=ARM_SCALE),
+        # One servo drives both fingers (the second follows through an equality), 0 to 4 cm.
+        "hand": Actuators(joints=["finger_joint1"], effort_limit=200.0, velocity_limit=0.2,
+                          armature=0.0, stiffness=350.0, damping=10.0, action_scale=0.04),
+    },
+    home={"joint1": 0.0, "joint2": -0.569, "joint3": 0.0, "joint4": -2.810, "joint5": 0.0,
+          "joint6": 3.037, "joint7": 0.741, "finger_joint.": 0.04},
+)
