@@ -123,12 +123,17 @@ def test_the_errors_are_mujoco_s_site_pose_against_the_command():
             1.0 - math.tanh(0.3), abs=1e-4)
         assert float(rewards["end_effector_orientation_tracking"][2]) == pytest.approx(0.4,
                                                                                     abs=1e-4)
-        # Success: within 5 cm and 0.35 rad. 3 cm and 0.4 rad is not; 0.3 rad would be.
-        success = env.task._success.compute()
-        assert not bool(success[2])
+        # Success: within 5 cm and 0.35 rad, judged on the step's errors. 3 cm and 0.4 rad is
+        # not; 3 cm and 0 rad is, though the command expires at that step and is drawn again.
+        made.after_step()
+        assert not bool(env.task._success.compute()[2])
         made.command[2, 3:] = torch.from_numpy(site_quat)
+        made.time_left[2] = 0.0
         env.task.robot.forget_derived()
+        made.after_step()
+        assert not torch.equal(made.command[2, 3:], torch.from_numpy(site_quat).to(made.command))
         assert bool(env.task._success.compute()[2])
+        assert float(made.metrics()["position_error"][2]) == pytest.approx(0.03, abs=1e-5)
     finally:
         env.close()
 

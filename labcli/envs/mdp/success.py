@@ -46,7 +46,8 @@ class pose_reached:  # noqa: N801
         self.command, self.cfg = task.command(cfg.command), cfg
 
     def __call__(self) -> torch.Tensor:
-        reached = self.command.position_error() < self.cfg.position_error
+        errors = self.command.errors  # the step's, against the command it pursued
+        reached = errors[:, 0] < self.cfg.position_error
         if self.cfg.orientation_error is not None:
-            reached &= self.command.orientation_error() < self.cfg.orientation_error
+            reached &= errors[:, 1] < self.cfg.orientation_error
         return reached
