@@ -6,7 +6,6 @@ import enum
 import statistics
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from datetime import datetime
 from pathlib import Path
 from typing import Any
 
@@ -216,18 +215,14 @@ def _rollout_shown(env, act, episodes: int, seed: int, show: Show,
     return eps
 
 
-def _stamp() -> str:
-    return datetime.now().strftime("%Y-%m-%d_%H-%M-%S")
-
-
 def _own_folder(run_dir: Path) -> Path:
-    """`<run>/videos/play/<time>/`: one play's videos, never written over by a later play's."""
-    parent = videos.folder(run_dir, videos.PLAY)
-    stamp = _stamp()
-    folder, n = parent / stamp, 1
+    """`<run>/videos/play/<time>/`: one play's videos, never written over by a later play's
+    (a second in the same second gets `<time>-1/`, as run dirs do)."""
+    parent, base = videos.folder(run_dir, videos.PLAY), rundir.stamp()
+    folder, n = parent / base, 0
     while folder.exists():
         n += 1
-        folder = parent / f"{stamp}_{n}"
+        folder = parent / f"{base}-{n}"
     return folder
 
 
@@ -277,7 +272,8 @@ def sanity(task: str, agent: Agent | str, *, episodes: int = 10, seed: int = 0,
         return torch.rand(shape, generator=generator) * 2.0 - 1.0
 
     try:
-        root = (logs_dir or rundir.default_logs_dir()) / SANITY / task / f"{_stamp()}_{agent.value}"
+        name = f"{rundir.stamp()}_{agent.value}"
+        root = (logs_dir or rundir.default_logs_dir()) / SANITY / task / name
         return spec, _rollout_shown(env, act, episodes, seed, show, root,
                                     videos.folder(root, videos.PLAY))
     finally:

@@ -272,8 +272,7 @@ def create(logs_dir: Path, framework: str, task: str, name: str | None = None) -
         raise LabError(f"cannot create the run directory under {parent}: {exc.strerror}",
                        "pass a writable --logs-dir") from exc
     check_writable(parent)
-    stamp = datetime.now().strftime("%Y-%m-%d_%H-%M-%S")
-    base = f"{stamp}_{name}" if name else stamp
+    base = f"{stamp()}_{name}" if name else stamp()
     for n in range(1000):
         path = parent / (base if n == 0 else f"{base}-{n}")
         try:
@@ -282,6 +281,12 @@ def create(logs_dir: Path, framework: str, task: str, name: str | None = None) -
             continue
         return Run(path)
     raise LabError(f"too many runs named {base} in {parent}")
+
+
+def stamp() -> str:
+    """Now, as the names of run dirs (and sweeps, plays' videos) begin: sorted by name, by
+    time."""
+    return datetime.now().strftime("%Y-%m-%d_%H-%M-%S")
 
 
 def find(logs_dir: Path, task: str | None = None, framework: str | None = None) -> list[Run]:

@@ -16,7 +16,6 @@ import signal
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field
-from datetime import datetime
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -167,7 +166,7 @@ def sweep(task: str, framework: str, space_file: Path, *, samples: int,
     _check_options(samples, metric, scheduler, search, max_concurrent, iterations)
     # Absolute: Tune runs each trial in a folder of its own.
     logs_dir = (logs_dir or rundir.default_logs_dir()).absolute()
-    name = name or datetime.now().strftime("%Y-%m-%d_%H-%M-%S")
+    name = name or rundir.stamp()
     _check_name(name)
     fixed = list(overrides)
     the_plan = plan(task, framework, overrides=fixed, max_iterations=iterations,
