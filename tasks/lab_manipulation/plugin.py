@@ -17,8 +17,7 @@ def _reach_defaults(num_envs: int, max_iterations: int) -> dict:
     """rsl_rl's and skrl's PPO as Isaac Lab's agents; on the GPU (warp backend) at Isaac Lab's
     4,096 envs and 1,000 iterations, not yet measured there."""
     env = {"env": {"num_envs": num_envs}}
-    gpu = {"warp": {"env": {"num_envs": 4096}, "agent": {"max_iterations": 1000}}}
-    return {name: {**settings, **gpu} for name, settings in {
+    defaults = {
         "rsl_rl": {**env, "agent": {
             "max_iterations": max_iterations, "num_steps_per_env": 24,
             "actor_hidden_dims": NETWORK, "critic_hidden_dims": NETWORK, "activation": "elu",
@@ -29,7 +28,10 @@ def _reach_defaults(num_envs: int, max_iterations: int) -> dict:
             "mini_batches": 4, "learning_rate": 1e-3, "desired_kl": 0.01,
             "entropy_loss_scale": 0.001, "value_loss_scale": 1.0, "hidden_sizes": NETWORK,
             "activation": "elu", "normalize_obs": False, "normalize_value": False}},
-    }.items()}
+    }
+    for settings in defaults.values():
+        settings["warp"] = {"env": {"num_envs": 4096}, "agent": {"max_iterations": 1000}}
+    return defaults
 
 
 @hookimpl
