@@ -15,6 +15,8 @@ from typing import Any
 import mujoco
 import numpy as np
 
+from labcli.mjtree import robot_free_joints
+
 GRAVITY = np.array([0.0, 0.0, -1.0])
 RAY_START = 5.0  # m above the root, where the height scan's rays start
 
@@ -50,8 +52,10 @@ class PlainLoop:
         self.default = {j["joint"]: j["default_position"] for j in joints}
         self.low, self.high = self.meta["output"]["range"]
         self.decimation = int(self.meta["timing"]["decimation"])
-        free = [j for j in range(self.model.njnt)
-                if self.model.jnt_type[j] == mujoco.mjtJoint.mjJNT_FREE]
+        free = robot_free_joints(self.model)
+        if not free:
+            raise ValueError("its robot is bolted to the world (no free joint), and the plain "
+                             "loop replays robots with a floating base")
         self.root_q = int(self.model.jnt_qposadr[free[0]])
         self.root_v = int(self.model.jnt_dofadr[free[0]])
         self.terms = [self._reader(term) for term in deployment["observations"]]

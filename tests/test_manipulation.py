@@ -10,15 +10,17 @@ import mujoco
 import numpy as np
 import pytest
 import torch
-from conftest import needs_menagerie
+from conftest import needs_menagerie, needs_warp
 from typer.testing import CliRunner
 
 from labcli.commands.app import app
+from labcli.envs import markers
 from labcli.envs.env import LabVecEnv
 from labcli.envs.mdp import config as c
 from labcli.envs.mdp import robot_model
 from labcli.envs.mdp.description import Actuators, RobotDescription
 from labcli.envs.mdp.task import RobotTask
+from labcli.envs.render import scene as scene_renderer
 from labcli.envs.spec import TaskSpec
 from labcli.errors import LabError
 from labcli.gym import make_env
@@ -179,9 +181,184 @@ def test_home_names_joints_of_the_model_or_is_one_line():
     assert err.value.message == "env.robot.home's 'elbow' matches no joint of model 'arm'"
 
 
-def test_panda_reach_trains_plays_and_exports_from_the_command_line(tmp_path):
+def lift(n: int, *overrides: str):
+    env = make_env("panda-lift", num_envs=n, seed=0, overrides=[*QUIET, *overrides],
+                   backend="cpu", device="cpu")
+    env.reset()
+    return env
+
+
+def hand_down_at(model: mujoco.MjModel, qpos: np.ndarray, pos: np.ndarray) -> np.ndarray:
+    """The arm's joint angles that put the gripper site at `pos`, pointing down (the hand's
+    fingers along the world's y): damped least squares on MuJoCo's site Jacobian."""
+    data, site = mujoco.MjData(model), model.site("gripper").id
+    data.qpos[:] = qpos
+    arm = [model.joint(f"joint{i}").qposadr[0] for i in range(1, 8)]
+    down = np.array([[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]])
+    for _ in range(200):
+        mujoco.mj_kinematics(model, data)
+        mujoco.mj_comPos(model, data)
+        error, turn = np.zeros(6), np.zeros(4)
+        error[:3] = pos - data.site_xpos[site]
+        mujoco.mju_mat2Quat(turn, (down @ data.site_xmat[site].reshape(3, 3).T).ravel())
+        mujoco.mju_quat2Vel(error[3:], turn, 1.0)
+        jac_pos, jac_rot = np.zeros((3, model.nv)), np.zeros((3, model.nv))
+        mujoco.mj_jacSite(model, data, jac_pos, jac_rot, site)
+        jac = np.vstack([jac_pos, jac_rot])[:, arm]
+        data.qpos[arm] += jac.T @ np.linalg.solve(jac @ jac.T + 1e-4 * np.eye(6), error)
+    assert np.linalg.norm(error) < 1e-4
+    return data.qpos[arm].copy()
+
+
+def grasp(env) -> list[torch.Tensor]:
+    """The actions of a scripted grasp of each env's cube where it starts: the hand above the
+    cube, down to it, the gripper closed, up 25 cm."""
+    model = env.sim.model
+    default = env.task.robot.default_joint_pos[0, :7].double().cpu().numpy()
+    plan = []
+    # Down in steps of 3 cm: one jump of the joints' targets swings the hand along a curve
+    # that may push the cube away.
+    down = [([0.0, 0.0, 0.03 * k], 1.0, 8) for k in range(5, 0, -1)]
+    for offset, grip, steps in (([0.0, 0.0, 0.15], 1.0, 40), *down, ([0.0, 0.0, 0.0], 1.0, 40),
+                                ([0.0, 0.0, 0.0], -1.0, 25), ([0.0, 0.0, 0.25], -1.0, 60)):
+        rows = []
+        for qpos in env.sim.qpos.double().cpu().numpy():
+            arm = (hand_down_at(model, qpos, qpos[9:12] + offset) - default) / 0.5
+            rows.append(np.append(arm, grip))
+        plan += [torch.tensor(np.stack(rows), dtype=torch.float32)] * steps
+    return plan
+
+
+def test_a_scripted_grasp_lifts_the_cube_and_the_lift_terms_see_it():
+    """Above the cube, down to it, the gripper closed, up by 25 cm: the binary action closes
+    the fingers on the cube, which leaves the floor; the observation, the rewards and success
+    against hand-computed values."""
+    env = lift(2)
+    try:
+        task = env.task
+        assert not task.robot.floating  # the cube's free joint is not the arm's base
+        plan = grasp(env)
+        for action in plan[:120]:
+            env.step(action)
+        assert float(env.sim.qpos[0, 7]) == pytest.approx(0.04, abs=1e-3)  # open: 4 cm
+        for action in plan[120:145]:
+            env.step(action)
+        closed = env.sim.qpos[:, 7].clone()
+        assert ((closed > 0.015) & (closed < 0.025)).all()  # on the 4 cm cube's sides, not shut
+        for action in plan[145:]:
+            env.step(action)
+        held = env.sim.qpos[0, 9:12].double()
+        assert float(held[2]) > 0.2 and float(env.sim.qpos[1, 11]) > 0.2
+        assert torch.allclose(env.sim.qpos[:, 7], closed, atol=1e-3)
+        # The arm stands at the origin unturned: the base frame is the world's.
+        assert env.task.observations()[0, 16:19].double() == pytest.approx(held, abs=1e-6)
+        command = task.command("object_pose")
+        target = command.command[0, :3].double()
+        rewards = task.reward_terms()
+        distance = float(torch.linalg.vector_norm(target - held))
+        assert float(rewards["lifting_object"][0]) == 1.0
+        assert float(rewards["object_goal_tracking"][0]) == pytest.approx(
+            1.0 - math.tanh(distance / 0.3), abs=1e-5)
+        assert float(rewards["object_goal_tracking_fine_grained"][0]) == pytest.approx(
+            1.0 - math.tanh(distance / 0.05), abs=1e-5)
+        assert float(rewards["reaching_object"][0]) > 1.0 - math.tanh(0.01 / 0.1)
+        # Success: the cube within 5 cm of the target at the step's end; here the target put
+        # 3 cm above where the cube is held.
+        command.command[0, :3] = held.to(command.command) + torch.tensor([0.0, 0.0, 0.03])
+        task.robot.forget_derived()
+        command.after_step()
+        assert float(command.errors[0, 0]) == pytest.approx(0.03, abs=1e-3)
+        assert bool(task._success.compute()[0])
+    finally:
+        env.close()
+
+
+@pytest.mark.gpu
+@needs_warp()
+def test_both_backends_grasp_and_lift_the_cube_alike():
+    """MuJoCo Warp holds the cube between the finger pads as MuJoCo does: from the same state,
+    the same scripted grasp lifts it on both, to within a centimetre of each other."""
+    from backends import lift_and_copy
+
+    cpu = lift(4)
+    gpu = make_env("panda-lift", num_envs=4, seed=0, overrides=QUIET, backend="warp",
+                   device="cuda")
+    gpu.reset()
+    lift_and_copy(cpu, gpu, height=0.0)
+    try:
+        for action in grasp(cpu):
+            cpu.step(action)
+            gpu.step(action.cuda())
+        cubes = [env.sim.qpos[:, 9:12].double().cpu() for env in (cpu, gpu)]
+        assert (cubes[0][:, 2] > 0.2).all() and (cubes[1][:, 2] > 0.2).all()
+        assert torch.allclose(cubes[0], cubes[1], atol=0.01)
+    finally:
+        cpu.close()
+        gpu.close()
+
+
+def test_the_cube_is_put_back_in_its_box_at_each_reset_on_the_floor():
+    env = lift(64)
+    try:
+        cube = env.sim.qpos[:, 9:16].double()
+        assert ((cube[:, 0] >= 0.4) & (cube[:, 0] <= 0.6)).all()
+        assert ((cube[:, 1] >= -0.25) & (cube[:, 1] <= 0.25)).all()
+        assert torch.equal(cube[:, 2], torch.full((64,), 0.03, dtype=cube.dtype))
+        assert torch.equal(cube[:, 3:], torch.tensor([[1.0, 0.0, 0.0, 0.0]]).expand(64, 4).to(
+            cube))
+        assert cube[:, 1].std() > 0.1  # drawn per env
+        target = env.task.command("object_pose").command
+        assert ((target[:, 2] >= 0.25) & (target[:, 2] <= 0.5)).all()
+    finally:
+        env.close()
+
+
+def test_a_gripper_s_binary_action_is_exported_with_its_two_targets():
+    env = lift(2)
+    try:
+        joints = env.describe()["deployment"]["joints"]
+        assert [("binary" in j) for j in joints] == [False] * 7 + [True]
+        assert joints[7]["binary"] == {"open": 0.04, "close": 0.0}
+        commands = [a["command"] for a in env.describe()["actions"]]
+        assert commands[7] == "ctrl = 0.04 if action >= 0, else 0"
+        env.step(torch.tensor([[0.0] * 7 + [0.0], [0.0] * 7 + [-0.001]]))
+        assert env.sim.ctrl[:, 7].tolist() == [0.04, 0.0]
+    finally:
+        env.close()
+
+
+def test_a_target_marker_is_drawn_at_the_command_s_target_in_the_world():
+    env = lift(2)
+    try:
+        made = env.task.command("object_pose")
+        marker, = env.markers()
+        assert marker.pos == pytest.approx(made.target_world()[0].tolist())
+        model = env.sim.model
+        scene = mujoco.MjvScene(model, maxgeom=100)
+        drawn = markers.draw
+        drawn(scene, [marker])
+        assert scene.ngeom == 4  # a sphere and the frame's three axes
+        assert scene.geoms[0].pos.tolist() == pytest.approx(marker.pos)
+        full = mujoco.MjvScene(model, maxgeom=2)
+        drawn(full, [marker])  # no room past maxgeom: what fits is drawn, nothing fails
+        assert full.ngeom == 2
+    finally:
+        env.close()
+
+
+def test_an_arm_s_video_frames_it_from_the_front():
+    env = lift(1)
+    camera = scene_renderer._following(env.sim.model)
+    env.close()
+    assert camera.type == mujoco.mjtCamera.mjCAMERA_FREE
+    assert 0.8 < camera.distance < 2.5  # where the arm reaches, not metres off
+    assert 0.0 < camera.lookat[0] < 0.6 and 0.1 < camera.lookat[2] < 0.8
+
+
+@pytest.mark.parametrize("task", ["panda-reach", "panda-lift"])
+def test_panda_tasks_train_play_and_export_from_the_command_line(tmp_path, task):
     env = {"LAB_LOGS_DIR": str(tmp_path)}
-    trained = CliRunner().invoke(app, ["train", "--task", "panda-reach", "--framework",
+    trained = CliRunner().invoke(app, ["train", "--task", task, "--framework",
                                        "rsl_rl", "--num-envs", "8", "--max-iterations", "2"],
                                  env=env)
     assert trained.exit_code == 0, trained.output
@@ -190,3 +367,6 @@ def test_panda_reach_trains_plays_and_exports_from_the_command_line(tmp_path):
     assert played.exit_code == 0 and "2 episodes" in played.output, played.output
     exported = CliRunner().invoke(app, ["export", "onnx", "--last"], env=env)
     assert exported.exit_code == 0, exported.output
+    # The plain-MuJoCo check replays floating robots: an arm's export is one line saying so.
+    checked = CliRunner().invoke(app, ["sim2sim", "--last", "--episodes", "1"], env=env)
+    assert checked.exit_code == 2 and "bolted to the world" in checked.output, checked.output

@@ -19,6 +19,7 @@ from labcli.envs import metrics
 from labcli.envs.compiled import CompiledStep, compiling_notice
 from labcli.envs.config import TaskConfig
 from labcli.envs.cuda_graph import GraphedStep
+from labcli.envs.markers import Marker
 from labcli.envs.random import EnvRandom
 from labcli.envs.render.scene import SceneRenderer
 from labcli.envs.sim import default_backend, make_sim
@@ -362,7 +363,11 @@ class LabVecEnv(gym.vector.VectorEnv):
         """Env 0 as an RGB image `[height, width, 3]`, rendered offscreen."""
         if self.closed:
             raise closed_error("render", self.task_spec.name)
-        return self._scene().render(self.sim.qpos[0], self.sim.qvel[0])
+        return self._scene().render(self.sim.qpos[0], self.sim.qvel[0], self.markers())
+
+    def markers(self) -> list[Marker]:
+        """What env 0's task shows beside its bodies (a commanded target)."""
+        return self.task.markers(0)
 
     def mj_scene(self) -> tuple[mujoco.MjModel, mujoco.MjData]:
         """The model and an MjData holding env 0's current state, for MuJoCo's viewer."""

@@ -217,6 +217,10 @@ class GymVecEnv(gym.vector.VectorEnv):
         except Exception as exc:  # MuJoCo's GL errors are FatalError, others vary
             raise render_error(exc) from exc
 
+    def markers(self) -> list:
+        """A Gymnasium env draws what it shows itself."""
+        return []
+
     def mj_scene(self) -> tuple[mujoco.MjModel, mujoco.MjData]:
         """Env 0's MuJoCo model and live data, for MuJoCo's viewer."""
         inner = self._vec.envs[0].unwrapped if isinstance(self._vec, gym.vector.SyncVectorEnv) \

@@ -491,6 +491,9 @@ class ShardedVecEnv(gym.vector.VectorEnv):
     def mj_scene(self):
         return self._local.mj_scene()
 
+    def markers(self) -> list:
+        return self._local.markers()
+
     def describe(self) -> dict[str, Any]:
         return self._local.describe()
 

@@ -14,6 +14,7 @@ import torch
 
 from labcli.envs import models
 from labcli.envs.config import TaskConfig
+from labcli.envs.markers import Marker
 from labcli.envs.models import ModelSource
 from labcli.envs.random import EnvRandom
 from labcli.envs.sim import Sim
@@ -150,6 +151,11 @@ class Task:
     # Termination causes (names of `terminations()`) that end an episode as a success: a goal
     # reached ends it early, and counts besides the episodes `success` judges at the time-out.
     success_causes: frozenset[str] = frozenset()
+
+    def markers(self, env: int) -> list[Marker]:
+        """What videos and the viewer show of env `env` beside its bodies (a commanded target,
+        labcli/envs/markers.py); the default shows nothing."""
+        return []
 
     def episode_metrics(self) -> dict[str, torch.Tensor]:
         """Figures per env `[num_envs]` about the episode so far (e.g. a command's mean tracking

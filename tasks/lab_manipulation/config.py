@@ -10,6 +10,11 @@ from lab_manipulation.panda import ROBOT as PANDA
 from labcli.envs.mdp import config as c
 from labcli.envs.mdp.description import RobotDescription
 
+CUBE = "box"  # the cube's body in Menagerie's mjx_single_cube
+# Isaac Lab's height (m, the cube's origin) above which the cube counts as lifted: 1 cm off
+# the floor here, where the cube's origin rests at 3 cm.
+LIFTED = 0.04
+
 # Isaac Lab's Isaac-Reach-Franka-v0 (manipulation/reach/reach_env_cfg.py with
 # config/franka/joint_pos_env_cfg.py): the hand's pose commanded in a box in front of the arm,
 # pointing down at a random yaw, drawn again every 4 s of a 12 s episode.
@@ -60,4 +65,67 @@ class PandaReachConfig(c.RobotTaskConfig):
     rewards: ReachRewards = ReachRewards()
     events: ReachEvents = ReachEvents()
     success: c.PoseReached | None = c.PoseReached(position_error=0.05, orientation_error=0.35)
+    rewards_per_second: bool = True
+
+
+# Isaac Lab's Isaac-Lift-Cube-Franka-v0 (manipulation/lift/lift_env_cfg.py with
+# config/franka/joint_pos_env_cfg.py), on Menagerie's cube scene (mjx_single_cube: a 4 x 4 x
+# 6 cm box on the floor in front of the arm): the arm's joints as in reach, the gripper open or
+# closed; the cube to be carried to a position drawn once per 5 s episode.
+class LiftCommands(c.Group):
+    object_pose: c.UniformPoseCommand | None = c.UniformPoseCommand(
+        body=CUBE, base_body="link0", resampling_time_range=(5.0, 5.0), pos_x=(0.4, 0.6),
+        pos_y=(-0.25, 0.25), pos_z=(0.25, 0.5), roll=(0.0, 0.0), pitch=(0.0, 0.0),
+        yaw=(0.0, 0.0))
+
+
+class LiftObservations(c.Group):
+    joint_pos: c.JointPos | None = c.JointPos()
+    joint_vel: c.JointVel | None = c.JointVel()
+    object_position: c.ObjectPosition | None = c.ObjectPosition(object=CUBE, base_body="link0")
+    target_object_position: c.GeneratedCommands | None = c.GeneratedCommands(
+        command="object_pose")
+    actions: c.LastAction | None = c.LastAction()
+
+
+class LiftRewards(c.Group):
+    reaching_object: c.ObjectReach | None = c.ObjectReach(weight=1.0, object=CUBE,
+                                                          site="gripper", std=0.1)
+    lifting_object: c.ObjectLifted | None = c.ObjectLifted(weight=15.0, object=CUBE,
+                                                           minimal_height=LIFTED)
+    object_goal_tracking: c.ObjectGoalDistance | None = c.ObjectGoalDistance(
+        weight=16.0, object=CUBE, std=0.3, minimal_height=LIFTED)
+    object_goal_tracking_fine_grained: c.ObjectGoalDistance | None = c.ObjectGoalDistance(
+        weight=5.0, object=CUBE, std=0.05, minimal_height=LIFTED)
+    action_rate: c.ActionRateL2 | None = c.ActionRateL2(weight=-1e-4)
+    joint_vel: c.JointVelL2 | None = c.JointVelL2(weight=-1e-4)
+
+
+class LiftEvents(c.Group):
+    reset_object_position: c.ResetRootUniform | None = c.ResetRootUniform(
+        body=CUBE, pose_range={"x": (-0.1, 0.1), "y": (-0.25, 0.25), "z": (0.0, 0.0)})
+
+
+class PandaLiftConfig(c.RobotTaskConfig):
+    robot: RobotDescription | None = PANDA
+    num_envs: int = Field(256, gt=0, le=2**20, description="parallel environments")
+    episode_length_s: float = Field(5.0, gt=0, le=1e6, description="time-out, in seconds")
+    # Isaac Lab's control at 50 Hz; physics at Menagerie's scene's 5 ms (Isaac Lab: 10 ms),
+    # which holds a grasped cube in MuJoCo's contacts.
+    sim_dt: float | None = Field(0.005, gt=0, description="physics step")
+    decimation: int = Field(4, gt=0, le=1000, description="physics steps per env step")
+    # MuJoCo Warp's room per env: the cube on the floor and in both fingers, pads and hand on
+    # the floor, up to ~30 contacts of 4 constraint rows each (its default 64 rows would
+    # overflow in a grasp).
+    njmax: int | None = 160
+    actions: c.JointPosition = c.JointPosition(
+        scale=None, binary=c.BinaryJoints(actuators=["actuator8"], open=0.04, close=0.0))
+    clip_actions: float = 100.0
+    commands: LiftCommands = LiftCommands()
+    observations: LiftObservations = LiftObservations()
+    rewards: LiftRewards = LiftRewards()
+    events: LiftEvents = LiftEvents()
+    # Isaac Lab's other termination, the cube dropped below its table, has none here: the cube
+    # lies on the floor.
+    success: c.PoseReached | None = c.PoseReached(command="object_pose", position_error=0.05)
     rewards_per_second: bool = True

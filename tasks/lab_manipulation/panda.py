@@ -9,6 +9,8 @@ from labcli.envs.mdp.description import Actuators, RobotDescription
 from labcli.envs.spec import Menagerie
 
 MODEL = Menagerie("franka_emika_panda", "mjx_scene")
+# The same scene with a cube on the floor in front of the arm.
+CUBE_MODEL = Menagerie("franka_emika_panda", "mjx_single_cube")
 ARMATURE = 0.1  # Menagerie's, for every arm joint
 # Isaac Lab's action scale: 0.5 rad per unit of action, from the default pose.
 ARM_SCALE = 0.5

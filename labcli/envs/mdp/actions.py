@@ -82,6 +82,7 @@ class JointEffortAction:
     def __init__(self, task: RobotTask, cfg: c.JointEffort):
         self.scale = task.tiled(per_actuator(task, cfg.scale))
         self.offset: torch.Tensor | None = None
+        self.binary: Binary | None = None
         self.commands = [f"ctrl = {s:g} * action" for s in self.scale[0].tolist()]
         self.delay = ActuatorDelay(task, cfg.delay) if cfg.delay is not None else None
 
@@ -89,8 +90,26 @@ class JointEffortAction:
         torch.mul(actions, self.scale, out=ctrl)
         if self.offset is not None:
             ctrl.add_(self.offset)
+        if self.binary is not None:
+            self.binary(actions, ctrl)
         if self.delay is not None:
             self.delay(ctrl)
+
+
+class Binary:
+    """The actuators of `cfg` (a gripper) at `open` where their action is >= 0, else `close`."""
+
+    def __init__(self, task: RobotTask, cfg: c.BinaryJoints):
+        self.actuators = names.resolve(task.model, "actuator", cfg.actuators)
+        self.cfg = cfg
+        self.index = torch.tensor(self.actuators, device=task.ones.device)
+        width = len(self.actuators)
+        self.open = task.tiled([cfg.open] * width)
+        self.close = task.tiled([cfg.close] * width)
+
+    def __call__(self, actions: torch.Tensor, ctrl: torch.Tensor) -> None:
+        closing = actions.index_select(1, self.index) < 0.0
+        ctrl.index_copy_(1, self.index, torch.where(closing, self.close, self.open))
 
 
 class JointPositionAction(JointEffortAction):
@@ -99,3 +118,8 @@ class JointPositionAction(JointEffortAction):
         self.offset = task.robot.default_joint_pos
         self.commands = [f"ctrl = {d:g} + {s:g} * action" for d, s in
                          zip(self.offset[0].tolist(), self.scale[0].tolist(), strict=True)]
+        if cfg.binary is not None:
+            self.binary = Binary(task, cfg.binary)
+            for i in self.binary.actuators:
+                self.commands[i] = (f"ctrl = {cfg.binary.open:g} if action >= 0, else "
+                                    f"{cfg.binary.close:g}")

@@ -8,8 +8,9 @@ from typing import TYPE_CHECKING
 import mujoco
 import torch
 
+from labcli.envs.markers import Marker
 from labcli.envs.mdp import config as c
-from labcli.envs.mdp import math, names, sensors
+from labcli.envs.mdp import math, names, objects, sensors
 from labcli.envs.mdp.events import Uniform
 from labcli.errors import LabError
 
@@ -148,10 +149,10 @@ class UniformPoseCommand:
     y, z) in the base body's frame; the site's own pose from frame sensors the task adds.
 
     A fixed base's body does not move: its pose is read once from the model's kinematics at
-    qpos0. The errors are computed once per state (rewards read them); `errors` keeps each
-    step's against the command the policy pursued in it, taken before a command expiring at
-    that step is drawn again (as at a 12 s time-out with 4 s commands): success and the logged
-    metrics judge those."""
+    qpos0 (`objects.FixedFrame`). The errors are computed once per state (rewards read them);
+    `errors` keeps each step's against the command the policy pursued in it, taken before a
+    command expiring at that step is drawn again (as at a 12 s time-out with 4 s commands):
+    success and the logged metrics judge those."""
 
     names = ["pos_x", "pos_y", "pos_z", "quat_w", "quat_x", "quat_y", "quat_z"]
     units = ["m, base frame"] * 3 + ["unit quaternion, base frame"] * 4
@@ -159,8 +160,7 @@ class UniformPoseCommand:
 
     @staticmethod
     def sensors(model: mujoco.MjModel, cfg: c.UniformPoseCommand) -> list[sensors.Sensor]:
-        return [sensors.frame("framepos", "site", cfg.site),
-                sensors.frame("framequat", "site", cfg.site)]
+        return [sensors.frame("framepos", *cfg.frame), sensors.frame("framequat", *cfg.frame)]
 
     def __init__(self, task: RobotTask, cfg: c.UniformPoseCommand):
         if task.robot.floating:
@@ -175,12 +175,7 @@ class UniformPoseCommand:
         self.errors = like.new_zeros(n, 2)  # position (m), orientation (rad)
         self.draw = Uniform(task, [cfg.pos_x, cfg.pos_y, cfg.pos_z, cfg.roll, cfg.pitch,
                                    cfg.yaw, cfg.resampling_time_range])
-        body = names.resolve_one(task.model, "body", cfg.base_body)
-        data = mujoco.MjData(task.model)
-        mujoco.mj_kinematics(task.model, data)
-        self._base_pos = task.tiled(data.xpos[body].tolist())
-        self._base_quat = task.tiled(data.xquat[body].tolist())
-        self._base_quat_inverse = task.tiled((data.xquat[body] * [1, -1, -1, -1]).tolist())
+        self.base = objects.fixed_frame(task, cfg.base_body)
         self._site = sensors.columns(task, [[s.name for s in self.sensors(task.model, cfg)]])
         self._target_pos, self._target_quat = self.command[:, :3], self.command[:, 3:]
 
@@ -188,13 +183,24 @@ class UniformPoseCommand:
         return self.command
 
     def site_pose(self) -> tuple[torch.Tensor, torch.Tensor]:
-        """The site's position `[n, 3]` and orientation `[n, 4]` in the base's frame."""
+        """The site's (or body's) position `[n, 3]` and orientation `[n, 4]` in the base's
+        frame."""
         def compute() -> torch.Tensor:
             pose = self._site()
-            pos = math.quat_apply_inverse(self._base_quat, pose[:, :3] - self._base_pos)
-            return torch.cat((pos, math.quat_mul(self._base_quat_inverse, pose[:, 3:])), dim=1)
+            return torch.cat((self.base.local(pose[:, :3]),
+                              math.quat_mul(self.base.quat_inverse, pose[:, 3:])), dim=1)
         pose = self.robot.per_state(("site_pose", self), compute)
         return pose[:, :3], pose[:, 3:]
+
+    def target_world(self) -> torch.Tensor:
+        """The target position in the world frame, `[n, 3]`, once per state."""
+        return self.robot.per_state(("target_world", self),
+                                    lambda: self.base.world(self._target_pos))
+
+    def markers(self, env: int) -> list[Marker]:
+        """The target of env `env`, for videos: its position and orientation in the world."""
+        quat = math.quat_mul(self.base.quat[env:env + 1], self._target_quat[env:env + 1])
+        return [Marker(self.target_world()[env].tolist(), quat[0].tolist())]
 
     def position_error(self) -> torch.Tensor:
         """The distance (m) from the site to its target position, `[n]`, once per state."""

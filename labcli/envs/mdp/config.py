@@ -83,15 +83,20 @@ class UniformVelocityCommand(RangeChecked):
 
 
 class UniformPoseCommand(RangeChecked):
-    """Isaac Lab's UniformPoseCommand: a target pose for a site (an end effector), in the frame
-    of the fixed base's body `base_body`: a position drawn in the box of `pos_x`, `pos_y`,
-    `pos_z` (m) and an orientation of a roll, pitch and yaw (rad, extrinsic x-y-z) drawn in
-    theirs, per env at reset and every `resampling_time_range` s. The command is the position
-    and the unit quaternion (w, x, y, z). Logs each episode's final position and orientation
-    errors as Metrics/<name>/position_error (m) and .../orientation_error (rad)."""
+    """Isaac Lab's UniformPoseCommand: a target pose for a site (an end effector) or a body (an
+    object to carry there), in the frame of the fixed base's body `base_body`: a position drawn
+    in the box of `pos_x`, `pos_y`, `pos_z` (m) and an orientation of a roll, pitch and yaw
+    (rad, extrinsic x-y-z) drawn in theirs, per env at reset and every
+    `resampling_time_range` s. The command is the position and the unit quaternion (w, x, y,
+    z). Logs each episode's final position and orientation errors of the site or body as
+    Metrics/<name>/position_error (m) and .../orientation_error (rad); videos show the target
+    as a marker."""
 
     impl: ClassVar[str] = "labcli.envs.mdp.commands:UniformPoseCommand"
-    site: str = Field(min_length=1, description="the site whose pose is commanded")
+    site: str | None = Field(None, min_length=1, description="the site whose pose is "
+                             "commanded (or give body)")
+    body: str | None = Field(None, min_length=1, description="the body whose pose is "
+                             "commanded (or give site)")
     base_body: str = Field(min_length=1, description="the fixed base's body: the frame")
     resampling_time_range: Range = (4.0, 4.0)
     pos_x: Range = (0.35, 0.65)
@@ -100,6 +105,18 @@ class UniformPoseCommand(RangeChecked):
     roll: Range = (0.0, 0.0)
     pitch: Range = (math.pi, math.pi)
     yaw: Range = (-math.pi, math.pi)
+
+    @model_validator(mode="after")
+    def _one_frame(self) -> UniformPoseCommand:
+        if (self.site is None) == (self.body is None):
+            raise ValueError("a pose command tracks a site or a body: give one of site and "
+                             "body, not " + ("both" if self.site else "neither"))
+        return self
+
+    @property
+    def frame(self) -> tuple[str, str]:
+        """What the command tracks: the sensors' object type and its name."""
+        return ("site", self.site) if self.site is not None else ("xbody", self.body)
 
 
 class CommandRef(Term):
@@ -282,6 +299,21 @@ class LastAction(ObsTerm):
     unit: ClassVar[str] = "the policy's last action"
 
 
+class ObjectTerm(Term):
+    """A term about a free body the robot handles (a cube), by its body's name."""
+
+    object: str = Field(min_length=1, description="the object's body (it has a free joint)")
+
+
+class ObjectPosition(ObjectTerm, ObsTerm):
+    """The object's position in the frame of the fixed base's body `base_body` (m): Isaac
+    Lab's `object_position_in_robot_root_frame`."""
+
+    impl: ClassVar[str] = "labcli.envs.mdp.observations:object_position_in_robot_root_frame"
+    unit: ClassVar[str] = "m, base frame"
+    base_body: str = Field(min_length=1, description="the fixed base's body: the frame")
+
+
 class BodyWrench(ObsTerm):
     """The force and torque each named body receives from its parent through its joint, in the
     body's frame (N, N m): Isaac Lab's `body_incoming_wrench`, read from MuJoCo force and torque
@@ -396,6 +428,33 @@ class OrientationCommandError(PoseCommandRef, RewardTerm):
     `orientation_command_error`."""
 
     impl: ClassVar[str] = "labcli.envs.mdp.rewards:orientation_command_error"
+
+
+class ObjectReach(ObjectTerm, RewardTerm):
+    """1 - tanh(distance from the site (an end effector) to the object / std): Isaac Lab's
+    `object_ee_distance`."""
+
+    impl: ClassVar[str] = "labcli.envs.mdp.rewards:object_ee_distance"
+    site: str = Field(min_length=1, description="the end effector's site")
+    std: float = Field(0.1, gt=0, description="m")
+
+
+class ObjectLifted(ObjectTerm, RewardTerm):
+    """1 where the object's origin is above `minimal_height` (m, world z): Isaac Lab's
+    `object_is_lifted`."""
+
+    impl: ClassVar[str] = "labcli.envs.mdp.rewards:object_is_lifted"
+    minimal_height: float = Field(0.04, description="m")
+
+
+class ObjectGoalDistance(PoseCommandRef, ObjectTerm, RewardTerm):
+    """Where the object is lifted (above `minimal_height`), 1 - tanh(its distance to the
+    command's target position / std): Isaac Lab's `object_goal_distance`."""
+
+    impl: ClassVar[str] = "labcli.envs.mdp.rewards:object_goal_distance"
+    command: str = "object_pose"
+    std: float = Field(0.3, gt=0, description="m")
+    minimal_height: float = Field(0.04, description="m")
 
 
 class JointAccL2(RewardTerm):
@@ -691,11 +750,14 @@ POSE_KEYS = ("x", "y", "z", "roll", "pitch", "yaw")
 
 
 class ResetRootUniform(EventTerm):
-    """At reset, the root's default pose plus uniform offsets per key of `pose_range`
-    (x, y, z in m; roll, pitch, yaw in rad), and velocities drawn from `velocity_range`
-    (x, y, z in m/s; roll, pitch, yaw in rad/s, world frame). Keys left out stay at 0."""
+    """At reset, the root's (or with `body`, a free body's) default pose plus uniform offsets
+    per key of `pose_range` (x, y, z in m; roll, pitch, yaw in rad), and velocities drawn from
+    `velocity_range` (x, y, z in m/s; roll, pitch, yaw in rad/s, world frame). Keys left out
+    stay at 0."""
 
     impl: ClassVar[str] = "labcli.envs.mdp.events:reset_root_state_uniform"
+    body: str | None = Field(None, min_length=1, description="a free body (an object) to "
+                             "reset instead of the robot's root")
     pose_range: dict[str, Range] = Field(default_factory=dict)
     velocity_range: dict[str, Range] = Field(default_factory=dict)
 
@@ -836,11 +898,23 @@ class JointEffort(ActionTerm):
     impl: ClassVar[str] = "labcli.envs.mdp.actions:JointEffortAction"
 
 
+class BinaryJoints(BaseModel):
+    """Actuators driven to one of two targets (a gripper's fingers): `open` where the action
+    is 0 or more, `close` where it is negative (Isaac Lab's `BinaryJointPositionAction`)."""
+
+    model_config = ConfigDict(extra="forbid", validate_assignment=True, allow_inf_nan=False)
+    actuators: list[str] = Field(min_length=1, description="actuators' names or patterns")
+    open: float = Field(description="the target where the action is >= 0")
+    close: float = Field(description="the target where the action is < 0")
+
+
 class JointPosition(ActionTerm):
     """ctrl = default joint position + scale x action: targets for MuJoCo position actuators,
-    whose kp, kv and force limits integrate the PD inside every physics substep."""
+    whose kp, kv and force limits integrate the PD inside every physics substep. `binary`:
+    actuators opened or closed instead (a gripper)."""
 
     impl: ClassVar[str] = "labcli.envs.mdp.actions:JointPositionAction"
+    binary: BinaryJoints | None = None
 
 
 # success --------------------------------------------------------------------------------------

@@ -41,6 +41,7 @@ def _joints(task: RobotTask) -> list[dict[str, Any]]:
     scale = act.scale[0].tolist()
     offset = act.offset[0].tolist() if act.offset is not None else [0.0] * model.nu
     default = task.robot.default_joint_pos[0].tolist()
+    binary = act.binary
     rows = []
     for i, name in enumerate(task.action_names):
         # A motor model's law (labcli.envs.mdp.motors): the MjModel's actuator is then a plain
@@ -52,7 +53,10 @@ def _joints(task: RobotTask) -> list[dict[str, Any]]:
             "stiffness": kp, "damping": kd, "effort_limit": _effort_limit(model, i),
             "action_scale": scale[i], "action_offset": offset[i],
             "command": "position target" if kp is not None or motor else "torque",
-            **({"motor": motor} if motor else {})})
+            **({"motor": motor} if motor else {}),
+            # A gripper's: its target is `open` where the action is >= 0, else `close`.
+            **({"binary": {"open": binary.cfg.open, "close": binary.cfg.close}}
+               if binary is not None and i in binary.actuators else {})})
     return rows
 
 

@@ -10,7 +10,7 @@ import mujoco
 import torch
 
 from labcli.envs.mdp import config as c
-from labcli.envs.mdp import math, names
+from labcli.envs.mdp import math, names, objects
 from labcli.errors import LabError
 
 if TYPE_CHECKING:
@@ -68,7 +68,15 @@ class reset_root_state_uniform:  # noqa: N801
     humanoid) the term leaves the default pose as the reset put it, at no cost per step."""
 
     def __init__(self, task: RobotTask, cfg: c.ResetRootUniform):
-        self.robot, self.sim = task.robot, task.sim
+        self.sim = task.sim
+        # The free joint it moves: the robot's root, or the object's.
+        if cfg.body is None:
+            r = task.robot
+            self.pos, self.quat, self.qpos, self.qvel = (r.root_pos, r.root_quat, r.root_qpos,
+                                                         r.root_qvel)
+        else:
+            body = objects.free_body(task, cfg.body)
+            self.pos, self.quat, self.qpos, self.qvel = body.pos, body.quat, body.qpos, body.qvel
         ranges = [cfg.pose_range.get(k, (0.0, 0.0)) for k in c.POSE_KEYS]
         ranges += [cfg.velocity_range.get(k, (0.0, 0.0)) for k in c.POSE_KEYS]
         self.draw = Uniform(task, ranges)
@@ -78,16 +86,15 @@ class reset_root_state_uniform:  # noqa: N801
     def reset(self, mask: torch.Tensor) -> None:
         if not self.moves:
             return
-        r = self.robot
         offset, velocity = self.draw().split(6, dim=1)
         m = mask[:, None]
-        quat = (math.quat_mul(r.root_quat, math.quat_from_rpy(*offset[:, 3:].unbind(1)))
-                if self.turns else r.root_quat)
-        pose = torch.cat((r.root_pos + offset[:, :3], quat), dim=1)
-        root_qpos = self.sim.qpos[:, r.root_qpos]
+        quat = (math.quat_mul(self.quat, math.quat_from_rpy(*offset[:, 3:].unbind(1)))
+                if self.turns else self.quat)
+        pose = torch.cat((self.pos + offset[:, :3], quat), dim=1)
+        root_qpos = self.sim.qpos[:, self.qpos]
         torch.where(m, pose, root_qpos, out=root_qpos)
         # The free joint's angular velocity is in the root's frame.
-        root_qvel = self.sim.qvel[:, r.root_qvel]
+        root_qvel = self.sim.qvel[:, self.qvel]
         torch.where(m, velocity, root_qvel, out=root_qvel)
 
 

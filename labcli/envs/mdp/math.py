@@ -53,6 +53,14 @@ def quat_apply_inverse(quat: torch.Tensor, vec: torch.Tensor) -> torch.Tensor:
     return vec - quat[:, :1] * t + torch.linalg.cross(xyz, t)
 
 
+def quat_apply(quat: torch.Tensor, vec: torch.Tensor) -> torch.Tensor:
+    """Vectors `[n, 3]` turned by unit quaternions `[n, 4]`: the quaternion's frame's vector in
+    the world (or parent) frame."""
+    xyz = quat[:, 1:]
+    t = torch.linalg.cross(xyz, vec).mul_(2.0)
+    return vec + quat[:, :1] * t + torch.linalg.cross(xyz, t)
+
+
 def yaw_of(quat: torch.Tensor) -> torch.Tensor:
     """The heading (rad) of unit quaternions `[n, 4]`: atan2(R10, R00), as `Robot.yaw`."""
     w, x, y, z = quat.unbind(1)

@@ -9,7 +9,7 @@ import mujoco
 import torch
 
 from labcli.envs.mdp import config as c
-from labcli.envs.mdp import events, math, names, sensors
+from labcli.envs.mdp import events, math, names, objects, sensors
 from labcli.errors import LabError
 
 if TYPE_CHECKING:
@@ -130,6 +130,15 @@ class generated_commands:  # noqa: N801 - a term, named as Isaac Lab's
 
 def last_action(task: RobotTask, cfg: c.LastAction) -> torch.Tensor:
     return task.action
+
+
+class object_position_in_robot_root_frame:  # noqa: N801
+    def __init__(self, task: RobotTask, cfg: c.ObjectPosition):
+        self.object = objects.free_body(task, cfg.object)
+        self.base = objects.fixed_frame(task, cfg.base_body)
+
+    def __call__(self) -> torch.Tensor:
+        return self.base.local(self.object.pos)
 
 
 class height_scan:  # noqa: N801 - a term, named as Isaac Lab's

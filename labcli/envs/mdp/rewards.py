@@ -10,7 +10,7 @@ import mujoco
 import torch
 
 from labcli.envs.mdp import config as c
-from labcli.envs.mdp import names, sensors
+from labcli.envs.mdp import names, objects, sensors
 from labcli.envs.mdp.feet import FootContacts, FootSites, paired_sites, site_names
 from labcli.envs.mdp.observations import distance_to_target, heading_projection
 from labcli.envs.mdp.robot import Robot
@@ -85,6 +85,39 @@ class orientation_command_error:  # noqa: N801
 
     def __call__(self) -> torch.Tensor:
         return self.command.orientation_error()
+
+
+class object_ee_distance:  # noqa: N801
+    def __init__(self, task: RobotTask, cfg: c.ObjectReach):
+        self.object, self.inv_std = objects.free_body(task, cfg.object), 1.0 / cfg.std
+        self.site = sensors.columns(task, [[s.name for s in self.sensors(task.model, cfg)]])
+
+    @staticmethod
+    def sensors(model: mujoco.MjModel, cfg: c.ObjectReach) -> list[sensors.Sensor]:
+        return [sensors.frame("framepos", "site", cfg.site)]
+
+    def __call__(self) -> torch.Tensor:
+        distance = torch.linalg.vector_norm(self.object.pos - self.site(), dim=1)
+        return 1.0 - torch.tanh(distance * self.inv_std)
+
+
+class object_is_lifted:  # noqa: N801
+    def __init__(self, task: RobotTask, cfg: c.ObjectLifted):
+        self.object, self.cfg = objects.free_body(task, cfg.object), cfg
+
+    def __call__(self) -> torch.Tensor:
+        return (self.object.height > self.cfg.minimal_height).to(self.object.height.dtype)
+
+
+class object_goal_distance:  # noqa: N801
+    def __init__(self, task: RobotTask, cfg: c.ObjectGoalDistance):
+        self.object, self.cfg = objects.free_body(task, cfg.object), cfg
+        self.command, self.inv_std = task.command(cfg.command), 1.0 / cfg.std
+
+    def __call__(self) -> torch.Tensor:
+        distance = torch.linalg.vector_norm(self.command.target_world() - self.object.pos, dim=1)
+        lifted = self.object.height > self.cfg.minimal_height
+        return (1.0 - torch.tanh(distance * self.inv_std)).mul_(lifted)
 
 
 def power_consumption(task: RobotTask, cfg: c.Energy) -> torch.Tensor:

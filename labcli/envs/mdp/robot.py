@@ -12,6 +12,7 @@ import torch
 from labcli.envs.mdp import math, names
 from labcli.envs.sim import Sim
 from labcli.errors import LabError
+from labcli.mjtree import robot_free_joints
 
 FREE = mujoco.mjtJoint.mjJNT_FREE
 # What only a floating base has (the private names: its rotation's entries, read by roll, pitch
@@ -151,8 +152,8 @@ class Robot:
 
     @staticmethod
     def _root_joint(model: mujoco.MjModel, root_body: str | None) -> int | None:
-        """The free joint of `root_body`, else the first free joint; None: a planar or fixed
-        base."""
+        """The free joint of `root_body`, else the robot's first free joint; None: a planar or
+        fixed base."""
         if root_body is not None:
             body = names.resolve_one(model, "body", root_body)
             joint = int(model.body_jntadr[body])
@@ -160,7 +161,7 @@ class Robot:
                 raise LabError(f"body '{root_body}' of model '{names.model_name(model)}' has no "
                                "free joint", "name the floating base as root_body")
             return joint
-        free = [j for j in range(model.njnt) if model.jnt_type[j] == FREE]
+        free = robot_free_joints(model)
         return free[0] if free else None
 
     def update(self) -> None:

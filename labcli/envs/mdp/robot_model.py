@@ -11,10 +11,14 @@ import mujoco
 
 from labcli.envs.mdp.description import RobotDescription
 from labcli.errors import LabError
+from labcli.mjtree import robot_free_joints
 
 
 def apply(spec: mujoco.MjSpec, robot: RobotDescription) -> None:
-    _check_base(spec, robot)
+    # As loaded: the edits below change no body, joint or keyframe that the checks and the
+    # compensation and home pose read.
+    model = spec.compile()
+    _check_base(spec, model, robot)
     f, zeta = robot.natural_frequency_hz, robot.damping_ratio
     for actuator in spec.actuators:
         joint = spec.joint(actuator.target)
@@ -63,12 +67,10 @@ def apply(spec: mujoco.MjSpec, robot: RobotDescription) -> None:
         for pair in list(spec.pairs):
             if not any(re.fullmatch(p, pair.name) for p in robot.contact_pairs):
                 spec.delete(pair)
-    if robot.gravity_compensation or robot.home is not None:
-        model = spec.compile()
-        if robot.gravity_compensation:
-            _compensate_gravity(spec, model)
-        if robot.home is not None:
-            _write_home(spec, model, robot.home)
+    if robot.gravity_compensation:
+        _compensate_gravity(spec, model)
+    if robot.home is not None:
+        _write_home(spec, model, robot.home)
 
 
 def _compensate_gravity(spec: mujoco.MjSpec, model: mujoco.MjModel) -> None:
@@ -108,8 +110,8 @@ def _write_home(spec: mujoco.MjSpec, model: mujoco.MjModel, home: dict[str, floa
     spec.add_key(name=HOME, qpos=qpos.tolist())
 
 
-def _check_base(spec: mujoco.MjSpec, robot: RobotDescription) -> None:
-    free = [j.name or "(unnamed)" for j in spec.joints if j.type == mujoco.mjtJoint.mjJNT_FREE]
+def _check_base(spec: mujoco.MjSpec, model: mujoco.MjModel, robot: RobotDescription) -> None:
+    free = [model.joint(j).name or "(unnamed)" for j in robot_free_joints(model)]
     if (robot.base == "floating") == bool(free):
         return
     model = spec.modelname or "(unnamed)"

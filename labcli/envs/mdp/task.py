@@ -30,6 +30,7 @@ import torch
 
 from labcli import refs
 from labcli.envs import models
+from labcli.envs.markers import Marker
 from labcli.envs.mdp import deployment, frames, robot_model, sensors, terrain_model
 from labcli.envs.mdp.config import Group, RobotTaskConfig, Term
 from labcli.envs.mdp.motors import ExplicitMotors
@@ -298,6 +299,10 @@ class RobotTask(Task):
         if self._success is None:
             return torch.zeros_like(time_out)
         return self._success.compute()
+
+    def markers(self, env: int) -> list[Marker]:
+        return [m for built in self._commands.values()
+                for m in getattr(built.made, "markers", lambda e: [])(env)]
 
     def episode_metrics(self) -> dict[str, torch.Tensor]:
         return {f"{name}/{key}": value for name, metrics in self._metrics

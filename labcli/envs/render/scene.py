@@ -6,9 +6,12 @@ import mujoco
 import numpy as np
 import torch
 
+from labcli.envs import markers
 from labcli.envs.mdp import terrain_model
+from labcli.envs.mdp.robot_model import HOME
 from labcli.envs.render import gl
 from labcli.errors import LabError, first_line
+from labcli.mjtree import robot_free_joints
 
 WIDTH, HEIGHT = 320, 240
 
@@ -36,7 +39,8 @@ class SceneRenderer:
         mujoco.mj_forward(self.model, self.data)
         return self.data
 
-    def render(self, qpos: torch.Tensor, qvel: torch.Tensor) -> np.ndarray:
+    def render(self, qpos: torch.Tensor, qvel: torch.Tensor,
+               shown: list[markers.Marker] | None = None) -> np.ndarray:
         if self._renderer is None:
             unavailable()
             height, width = self.size
@@ -46,6 +50,7 @@ class SceneRenderer:
                 raise render_error(exc) from exc
         self.sync(qpos, qvel)
         self._renderer.update_scene(self.data, camera=self.camera)
+        markers.draw(self._renderer.scene, shown or [])
         return self._renderer.render()
 
     def close(self) -> None:
@@ -56,26 +61,42 @@ class SceneRenderer:
 def _following(model: mujoco.MjModel) -> mujoco.MjvCamera:
     """A camera that follows the robot from above and behind: on terrain a robot's own camera,
     level with it a metre or two to the side, looks into the walls of the next patch's stairs;
-    a fixed view loses a robot that walks off. Tracks the floating base (the first body with a
-    free joint), else the first body."""
-    free = [b for b in range(1, model.nbody) if model.body_jntnum[b]
-            and model.jnt_type[model.body_jntadr[b]] == mujoco.mjtJoint.mjJNT_FREE]
+    a fixed view loses a robot that walks off. Tracks the floating base; a robot bolted to the
+    world (an arm) is framed where it works instead: its bodies in its default pose, from the
+    front and above."""
+    free = robot_free_joints(model)
     camera = mujoco.MjvCamera()
-    camera.type = mujoco.mjtCamera.mjCAMERA_TRACKING
-    camera.trackbodyid = free[0] if free else min(1, model.nbody - 1)
-    # Near enough to see a gait, far enough to see the robot whole and the steps around it: a
-    # Go1 (its feet 0.48 m from its trunk) from 1.7 m, a G1 (0.77 m) from 2.7 m.
-    camera.distance = max(3.5 * _reach(model, camera.trackbodyid), 1.0)
     camera.elevation, camera.azimuth = -30.0, 135.0
+    if free:
+        camera.type = mujoco.mjtCamera.mjCAMERA_TRACKING
+        camera.trackbodyid = int(model.jnt_bodyid[free[0]])
+        # Near enough to see a gait, far enough to see the robot whole and the steps around
+        # it: a Go1 (its feet 0.48 m from its trunk) from 1.7 m, a G1 (0.77 m) from 2.7 m.
+        positions = _positions(model, camera.trackbodyid)
+        reach = np.linalg.norm(positions - positions[0], axis=1).max()
+        camera.distance = max(3.5 * float(reach), 1.0)
+        return camera
+    root = int(model.body_rootid[model.jnt_bodyid[model.actuator_trnid[0, 0]]]) \
+        if model.nu else min(1, model.nbody - 1)
+    positions = _positions(model, root, key=HOME)
+    low, high = positions.min(axis=0), positions.max(axis=0)
+    camera.type = mujoco.mjtCamera.mjCAMERA_FREE
+    camera.lookat[:] = (low + high) / 2.0
+    # A Panda in its default pose (about 0.7 m across) from 1.5 m.
+    camera.distance = max(2.0 * float(np.linalg.norm(high - low)), 0.5)
+    camera.elevation, camera.azimuth = -25.0, 150.0
     return camera
 
 
-def _reach(model: mujoco.MjModel, root: int) -> float:
-    """How far the bodies under `root` reach from it in the model's own pose, in metres."""
+def _positions(model: mujoco.MjModel, root: int, key: str | None = None) -> np.ndarray:
+    """The positions (world frame) of `root` and the bodies under it, `root` first: in the
+    keyframe `key` where the model has it, else in the model's own pose."""
     data = mujoco.MjData(model)
+    if key is not None and mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_KEY, key) >= 0:
+        mujoco.mj_resetDataKeyframe(model, data, model.key(key).id)
     mujoco.mj_kinematics(model, data)
     under = [b for b in range(root, model.nbody) if _descends(model, b, root)]
-    return float(np.linalg.norm(data.xpos[under] - data.xpos[root], axis=1).max())
+    return data.xpos[under]
 
 
 def _descends(model: mujoco.MjModel, body: int, root: int) -> bool:

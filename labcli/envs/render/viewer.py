@@ -8,6 +8,7 @@ from typing import Any
 
 import gymnasium as gym
 
+from labcli.envs import markers
 from labcli.envs.render import gl
 from labcli.errors import LabError
 
@@ -57,6 +58,8 @@ class Viewer(gym.vector.VectorWrapper):
         result = self.env.step(actions)
         with self._handle.lock():
             self.env.unwrapped.mj_scene()  # copies env 0's state into the viewer's MjData
+            self._handle.user_scn.ngeom = 0
+            markers.draw(self._handle.user_scn, self.env.unwrapped.markers())
         self._handle.sync()
         self._next += self._dt
         time.sleep(max(0.0, self._next - time.perf_counter()))
