@@ -4,6 +4,7 @@ description's home pose."""
 
 from __future__ import annotations
 
+import json
 import math
 
 import mujoco
@@ -370,3 +371,20 @@ def test_panda_tasks_train_play_and_export_from_the_command_line(tmp_path, task)
     # The plain-MuJoCo check replays floating robots: an arm's export is one line saying so.
     checked = CliRunner().invoke(app, ["sim2sim", "--last", "--episodes", "1"], env=env)
     assert checked.exit_code == 2 and "bolted to the world" in checked.output, checked.output
+
+
+def test_the_summary_keeps_the_last_ended_episodes_figures(tmp_path, monkeypatch):
+    """panda-reach's 12 s episodes end together every 15 iterations of 24 steps: the 16th
+    ends none. A physics buffer's overflow in it (as MuJoCo Warp reports them) must not blank
+    the run's final return and success."""
+    from labcli.envs.sim.cpu import CpuSim
+
+    monkeypatch.setattr(CpuSim, "pop_overflows", lambda self: {"ITERATIONS": 1.0})
+    trained = CliRunner().invoke(app, ["train", "--task", "panda-reach", "--framework", "rsl_rl",
+                                       "--num-envs", "4", "--max-iterations", "16"],
+                                 env={"LAB_LOGS_DIR": str(tmp_path)})
+    assert trained.exit_code == 0, trained.output
+    summary, = tmp_path.glob("rsl_rl/panda-reach/*/summary.json")
+    figures = json.loads(summary.read_text())
+    assert figures["mean_return"] is not None and figures["success_rate"] is not None
+    assert "success" in trained.output.splitlines()[-1]

@@ -149,8 +149,11 @@ class RunContext(TrainContext):
         self.iteration, self.steps = iteration, steps
         stats = self.env.pop_stats(self._summed if self.ranks.active else None)
         if stats:
-            self.last_stats = stats
             self._since_save.add(stats)
+        if stats.get(metrics.EPISODES):
+            # The last figures of ended episodes, for the progress line and the summary: an
+            # iteration in which none ended (its buffers' overflows alone) keeps them.
+            self.last_stats = stats
         bad = stats.get(metrics.NONFINITE_ACTIONS, 0)
         if bad:  # the candidate, which acted in this rollout, is bad
             raise self._diverged(iteration, "the policy emitted non-finite actions (NaN or inf) "
