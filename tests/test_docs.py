@@ -43,4 +43,4 @@ def test_the_term_reference_is_the_configs_own():
     assert "| `margin` | float (≥ 0) | `0.3` | m inside the edge |" in text
     kinds = [line for line in text.splitlines() if line.startswith("## ")]
     assert kinds == ["## Actions", "## Commands", "## Observations", "## Rewards",
-                     "## Terminations", "## Events", "## Success"]
+                     "## Terminations", "## Events", "## Curriculum", "## Success"]

@@ -20,7 +20,9 @@ from labcli.testing import check_task, check_task_outputs, check_task_resume
     pytest.param("go1-flat", marks=needs_menagerie("unitree_go1")),
     pytest.param("go2-flat", marks=needs_menagerie("unitree_go2")),
     pytest.param("g1-flat", marks=needs_menagerie("unitree_g1")),
-    pytest.param("g1-rough", marks=needs_menagerie("unitree_g1"))])
+    pytest.param("g1-rough", marks=needs_menagerie("unitree_g1")),
+    pytest.param("panda-reach", marks=needs_menagerie("franka_emika_panda")),
+    pytest.param("panda-lift", marks=needs_menagerie("franka_emika_panda"))])
 def test_the_built_in_tasks_pass_the_task_checks(task):
     check_task(task)
 

@@ -132,6 +132,7 @@ class LabVecEnv(gym.vector.VectorEnv):
         sums = self._episode_sums = torch.zeros(1 + k, n, device=dev)
         self.episode_return, self.episode_terms = sums[0], sums[1:].t()
         self._weights = weights.expand(n, k).contiguous()
+        self.task.weigh(self._weights)
         self._weighted = torch.empty(n, k, device=dev)
         # One row per figure that `pop_stats` reports, one column per env (see `_accumulate`),
         # and where each figure goes in it: views made once, each shaped like its figure.

@@ -51,6 +51,13 @@ class Task:
         self.cfg = cfg
         self.sim = sim
         self.step_dt = sim.model.opt.timestep * cfg.decimation  # seconds an env step lasts
+        # The env's reward weights `[num_envs, terms]` (per step, in its `reward_names`
+        # order), which a task may change in place as training goes on (a curriculum).
+        self.reward_weights: torch.Tensor | None = None
+
+    def weigh(self, weights: torch.Tensor) -> None:
+        """Called once by the env with its reward weights (`reward_weights`)."""
+        self.reward_weights = weights
 
     @classmethod
     def build_model(cls, cfg: TaskConfig, source: ModelSource,

@@ -106,6 +106,15 @@ class LiftEvents(c.Group):
         body=CUBE, pose_range={"x": (-0.1, 0.1), "y": (-0.25, 0.25), "z": (0.0, 0.0)})
 
 
+class LiftCurriculum(c.Group):
+    # Isaac Lab's: the smoothness penalties a thousand times heavier after 10,000 env steps
+    # (about 417 iterations of 24 steps), once the arm has found the cube.
+    action_rate: c.RewardWeight | None = c.RewardWeight(term="action_rate", weight=-0.1,
+                                                        num_steps=10_000)
+    joint_vel: c.RewardWeight | None = c.RewardWeight(term="joint_vel", weight=-0.1,
+                                                      num_steps=10_000)
+
+
 class PandaLiftConfig(c.RobotTaskConfig):
     robot: RobotDescription | None = PANDA
     num_envs: int = Field(256, gt=0, le=2**20, description="parallel environments")
@@ -125,6 +134,7 @@ class PandaLiftConfig(c.RobotTaskConfig):
     observations: LiftObservations = LiftObservations()
     rewards: LiftRewards = LiftRewards()
     events: LiftEvents = LiftEvents()
+    curriculum: LiftCurriculum = LiftCurriculum()
     # Isaac Lab's other termination, the cube dropped below its table, has none here: the cube
     # lies on the floor.
     success: c.PoseReached | None = c.PoseReached(command="object_pose", position_error=0.05)

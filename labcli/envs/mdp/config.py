@@ -917,6 +917,22 @@ class JointPosition(ActionTerm):
     binary: BinaryJoints | None = None
 
 
+# curriculum -----------------------------------------------------------------------------------
+class CurriculumTerm(Term):
+    pass
+
+
+class RewardWeight(CurriculumTerm):
+    """The reward term `term`'s weight becomes `weight` once the env has stepped `num_steps`
+    times since it was made (a resumed run counts on): Isaac Lab's `modify_reward_weight`, by
+    its common step counter."""
+
+    impl: ClassVar[str] = "labcli.envs.mdp.curriculum:modify_reward_weight"
+    term: str = Field(min_length=1, description="a reward term's name in env.rewards")
+    weight: float
+    num_steps: int = Field(ge=0, description="env steps (each a step of every env)")
+
+
 # success --------------------------------------------------------------------------------------
 class MovedTowardTarget(Target):
     """An episode that reached its time-out having moved `distance` m or more toward the target
@@ -996,6 +1012,7 @@ class RobotTaskConfig(TaskConfig):
     rewards: Group = Group()
     terminations: Group = Group()
     events: Group = Group()
+    curriculum: Group = Group()
     observation_noise: bool = Field(True, description="add each observation term's noise "
                                     "(training; lab play sets it false unless asked)")
     success: Term | None = None

@@ -27,6 +27,7 @@ KINDS = [
     ("Rewards", c.RewardTerm, "env.rewards.<term>"),
     ("Terminations", c.TerminationTerm, "env.terminations.<term>"),
     ("Events", c.EventTerm, "env.events.<term>"),
+    ("Curriculum", c.CurriculumTerm, "env.curriculum.<term>"),
     ("Success", None, "env.success"),
 ]
 COMMAND_MODULE = "labcli.envs.mdp.commands"

@@ -51,7 +51,7 @@ def impl_of(term: Term) -> Any:
 
 def _all_terms(cfg: RobotTaskConfig) -> list[Term]:
     groups: Sequence[Group] = (cfg.commands, cfg.observations, cfg.rewards, cfg.terminations,
-                               cfg.events)
+                               cfg.events, cfg.curriculum)
     return [cfg.actions, *(t for g in groups for _, t in g.terms()),
             *([cfg.success] if cfg.success is not None else [])]
 
@@ -152,6 +152,9 @@ class RobotTask(Task):
         self.success_causes = frozenset(b.name for b in self._terminations if b.cfg.success)
         self._time_outs = [b for b in terminations if b.cfg.time_out]
         self._events = [Built(self, name, t) for name, t in cfg.events.terms()]
+        # Env steps since the env was made, per env (all alike): what curricula go by.
+        self.steps = torch.zeros(n, dtype=torch.long, device=dev)
+        self._curriculum = [Built(self, name, t).compute for name, t in cfg.curriculum.terms()]
         self._success = (Built(self, "success", cfg.success) if cfg.success is not None
                          else None)
         every = [*self._commands.values(), *self._obs, *self._rewards, *self._terminations,
@@ -282,15 +285,26 @@ class RobotTask(Task):
     def after_step(self) -> None:
         for hook in self._after_step:
             hook()
+        if self._curriculum:
+            self.steps += 1
+            self.weigh(self.reward_weights)
+
+    def weigh(self, weights: torch.Tensor) -> None:
+        super().weigh(weights)
+        for term in self._curriculum:
+            term()
 
     def state(self) -> dict[str, torch.Tensor]:
         return {"action": self.action, "previous_action": self.previous_action,
+                **({"steps": self.steps} if self._curriculum else {}),
                 **{f"{owner}/{name}": getattr(made, name) for owner, made in self._carriers
                    for name in made.carried}}
 
     def state_restored(self) -> None:
         # The saved state has its start-up events' draws already: they must not run again.
         self._startups.clear()
+        if self._curriculum:
+            self.weigh(self.reward_weights)
         for _, made in self._carriers:
             if hasattr(made, "restored"):
                 made.restored()
