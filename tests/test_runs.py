@@ -81,3 +81,20 @@ def test_a_run_is_reproduced_from_its_params_dir(tmp_path):
     assert returns[0] == returns[1] and len(returns[0]) == 2
     assert (again.run.dir / "params" / "agent.yaml").read_text() == \
         (params / "agent.yaml").read_text()
+
+
+def test_a_progress_line_shows_the_rate_since_the_last_line(monkeypatch):
+    """Not the printed iteration's own rate: that may be an iteration that wrote a
+    checkpoint, the slowest kind."""
+    from labcli.runs import progress
+
+    out = io.StringIO()
+    clock = iter([1.0, 4.0])
+    monkeypatch.setattr(progress.time, "perf_counter", lambda: next(clock))
+    with progress.TrainProgress(20, "train", Console(file=out, width=200)) as bar:
+        bar.update(1, 100.0, None, None, steps=100)  # a line: its own rate
+        bar.update(2, 100.0, None, None, steps=200)  # no line
+        bar.update(3, 50.0, 1.5, 0.25, steps=300)  # a line: 200 steps in 3 s
+    lines = out.getvalue().splitlines()
+    assert lines[1:] == ["  iteration 1/20  100 steps/s",
+                         "  iteration 3/20  67 steps/s  return 1.5  success 25%"]

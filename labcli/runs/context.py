@@ -173,7 +173,7 @@ class RunContext(TrainContext):
             self.progress.update(iteration, steps_per_s,
                                  self.last_stats.get(metrics.MEAN_RETURN),
                                  self.last_stats.get(metrics.SUCCESS_RATE),
-                                 self.last_stats.get(metrics.TERRAIN_LEVEL))
+                                 self.last_stats.get(metrics.TERRAIN_LEVEL), steps=steps)
             if self.on_iteration is not None and self.on_iteration(iteration, steps, figures):
                 self.stop.request()
         stopping = self.stop_requested
