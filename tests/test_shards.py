@@ -256,6 +256,24 @@ def test_reset_mask_observations_and_resume_reach_every_shard(sharded):
     assert torch.equal(sharded.episode_length, state["episode_length"])
 
 
+def test_a_worker_s_answers_hold_their_values_not_shared_memory_to_fetch(sharded,
+                                                                          monkeypatch):
+    """A tensor crossing as shared memory is fetched from the worker after its answer arrived:
+    a worker stopped (SIGSTOP) in between hung the caller past every check. Here fetching one
+    fails: the state and a pickled copy's snapshot come by value."""
+    from torch.multiprocessing import reductions
+
+    def fetched(*args):
+        raise AssertionError("a tensor was fetched from a worker")
+
+    trajectory(sharded, 5)
+    monkeypatch.setattr(reductions, "rebuild_storage_fd", fetched)
+    state = sharded.get_state()
+    assert state["qpos"].shape == (128, 2) and state["generator"].dtype == torch.uint8
+    snapshot = sharded.__reduce__()[2]["shards"]
+    assert torch.equal(torch.cat([part["qpos"] for part in snapshot]), state["qpos"])
+
+
 @pytest.mark.parametrize("call", ["step", "reset", "get_state"])
 def test_a_worker_that_dies_is_one_line_not_a_hang(sharded, call):
     """Whether the caller was stepping or sending a command (whose pipe then breaks: a

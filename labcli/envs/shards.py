@@ -146,9 +146,42 @@ def _serve(spec: TaskSpec, cfg: TaskConfig, seed: int, mode: AutoresetMode, shar
             env.close()
             return
         try:
-            conn.send(("ok", end.handle(command, args)))
+            conn.send(("ok", _by_value(end.handle(command, args))))
         except Exception as exc:
             conn.send(("error", _report(exc)))
+
+
+@dataclass(frozen=True)
+class _Copied:
+    """A tensor a worker answers with, as its values. A tensor itself would cross as a shared
+    memory file that the caller fetches from the worker after the answer arrived (torch's
+    reductions: a file descriptor handed over by the worker's resource-sharing thread), and a
+    worker stopped (SIGSTOP) in between would leave the caller waiting forever, past any
+    check."""
+
+    values: np.ndarray
+
+
+def _by_value(answer: Any) -> Any:
+    """`answer` with every tensor in it (in dicts, lists, tuples) `_Copied`."""
+    if isinstance(answer, torch.Tensor):
+        return _Copied(answer.numpy())
+    if isinstance(answer, dict):
+        return {key: _by_value(value) for key, value in answer.items()}
+    if isinstance(answer, list | tuple):
+        return type(answer)(_by_value(value) for value in answer)
+    return answer
+
+
+def _as_tensors(answer: Any) -> Any:
+    """`_by_value` undone, in the caller."""
+    if isinstance(answer, _Copied):
+        return torch.from_numpy(answer.values)
+    if isinstance(answer, dict):
+        return {key: _as_tensors(value) for key, value in answer.items()}
+    if isinstance(answer, list | tuple):
+        return type(answer)(_as_tensors(value) for value in answer)
+    return answer
 
 
 def _spin_acquire(semaphore: Any) -> bool:
@@ -254,7 +287,7 @@ class _Worker:
             kind, value = self.conn.recv()
         if kind == "error":
             raise LabError(f"env shard {self.index} (a worker process): {value.splitlines()[0]}")
-        return value
+        return _as_tensors(value)
 
     @contextlib.contextmanager
     def _gone_if_the_pipe_breaks(self) -> Iterator[None]:
