@@ -210,3 +210,17 @@ def test_a_fixed_description_of_a_floating_robot_is_one_line():
         robot_model.apply(spec, arm_description("fixed"))
     assert err.value.message == ("env.robot.base is 'fixed', but model 'box' has a free joint "
                                  "('root'): its base floats")
+
+
+@pytest.mark.parametrize(("xml", "tracked"), [(HOPPER, "torso"), (ARM, None)],
+                         ids=["planar", "fixed"])
+def test_a_video_follows_a_planar_robot_and_frames_a_fixed_one(xml, tracked):
+    from labcli.envs.render.scene import _following
+
+    model = mujoco.MjModel.from_xml_string(xml)
+    camera = _following(model)
+    if tracked is None:
+        assert camera.type == mujoco.mjtCamera.mjCAMERA_FREE
+    else:
+        assert camera.type == mujoco.mjtCamera.mjCAMERA_TRACKING
+        assert camera.trackbodyid == model.body(tracked).id

@@ -61,23 +61,25 @@ class SceneRenderer:
 def _following(model: mujoco.MjModel) -> mujoco.MjvCamera:
     """A camera that follows the robot from above and behind: on terrain a robot's own camera,
     level with it a metre or two to the side, looks into the walls of the next patch's stairs;
-    a fixed view loses a robot that walks off. Tracks the floating base; a robot bolted to the
-    world (an arm) is framed where it works instead: its bodies in its default pose, from the
-    front and above."""
+    a fixed view loses a robot that walks off. Tracks the floating base (or a planar one's
+    root body, which slides); a robot bolted to the world (an arm) is framed where it works
+    instead: its bodies in its default pose, from the front and above."""
     free = robot_free_joints(model)
+    root = int(model.body_rootid[model.jnt_bodyid[model.actuator_trnid[0, 0]]]) \
+        if model.nu else min(1, model.nbody - 1)
     camera = mujoco.MjvCamera()
     camera.elevation, camera.azimuth = -30.0, 135.0
-    if free:
+    joints = range(model.body_jntadr[root], model.body_jntadr[root] + model.body_jntnum[root])
+    planar = any(model.jnt_type[j] == mujoco.mjtJoint.mjJNT_SLIDE for j in joints)
+    if free or planar:
         camera.type = mujoco.mjtCamera.mjCAMERA_TRACKING
-        camera.trackbodyid = int(model.jnt_bodyid[free[0]])
+        camera.trackbodyid = int(model.jnt_bodyid[free[0]]) if free else root
         # Near enough to see a gait, far enough to see the robot whole and the steps around
         # it: a Go1 (its feet 0.48 m from its trunk) from 1.7 m, a G1 (0.77 m) from 2.7 m.
         positions = _positions(model, camera.trackbodyid)
         reach = np.linalg.norm(positions - positions[0], axis=1).max()
         camera.distance = max(3.5 * float(reach), 1.0)
         return camera
-    root = int(model.body_rootid[model.jnt_bodyid[model.actuator_trnid[0, 0]]]) \
-        if model.nu else min(1, model.nbody - 1)
     positions = _positions(model, root, key=HOME)
     low, high = positions.min(axis=0), positions.max(axis=0)
     camera.type = mujoco.mjtCamera.mjCAMERA_FREE
