@@ -164,24 +164,23 @@ class _Copied:
 
 def _by_value(answer: Any) -> Any:
     """`answer` with every tensor in it (in dicts, lists, tuples) `_Copied`."""
-    if isinstance(answer, torch.Tensor):
-        return _Copied(answer.numpy())
-    if isinstance(answer, dict):
-        return {key: _by_value(value) for key, value in answer.items()}
-    if isinstance(answer, list | tuple):
-        return type(answer)(_by_value(value) for value in answer)
-    return answer
+    return _converted(answer, torch.Tensor, lambda tensor: _Copied(tensor.numpy()))
 
 
 def _as_tensors(answer: Any) -> Any:
     """`_by_value` undone, in the caller."""
-    if isinstance(answer, _Copied):
-        return torch.from_numpy(answer.values)
-    if isinstance(answer, dict):
-        return {key: _as_tensors(value) for key, value in answer.items()}
-    if isinstance(answer, list | tuple):
-        return type(answer)(_as_tensors(value) for value in answer)
-    return answer
+    return _converted(answer, _Copied, lambda copied: torch.from_numpy(copied.values))
+
+
+def _converted(value: Any, kind: type, convert: Callable[[Any], Any]) -> Any:
+    """`value` with every `kind` in it (in dicts, lists, tuples) `convert`ed."""
+    if isinstance(value, kind):
+        return convert(value)
+    if isinstance(value, dict):
+        return {key: _converted(item, kind, convert) for key, item in value.items()}
+    if isinstance(value, list | tuple):
+        return type(value)(_converted(item, kind, convert) for item in value)
+    return value
 
 
 def _spin_acquire(semaphore: Any) -> bool:

@@ -195,13 +195,16 @@ class Show:
 
 
 def _rollout_shown(env, act, episodes: int, seed: int, show: Show,
-                   root: Path, folder: Path) -> Episodes:
+                   root: Path, folder: Path, stamped: bool = False) -> Episodes:
     """The rollout, shown as `show` says; videos go to `folder` under `root`, a run dir or a
-    sanity agent's dir that is made for them."""
+    sanity agent's dir that is made for them; `stamped`, to a new `<time>/` folder in it, which
+    a later play's never writes over."""
     recorder = None
     if show.video is not None:
         # An unwritable place, or a link planted on the way, fails now, not after the rollout.
         files.real_dir(folder, below=files.user_dir(root))
+        if stamped:
+            folder = rundir.unique_dir(folder, rundir.stamp())
         recorder = VideoRecorder(env, folder, show.video.length, interval=None)
     shown = recorder or env
     if show.viewer:
@@ -213,17 +216,6 @@ def _rollout_shown(env, act, episodes: int, seed: int, show: Show,
             shown.close()  # writes the video; its owner closes the env again, harmlessly
     eps.videos = list(recorder.files) if recorder else []
     return eps
-
-
-def _own_folder(run_dir: Path) -> Path:
-    """`<run>/videos/play/<time>/`: one play's videos, never written over by a later play's
-    (a second in the same second gets `<time>-1/`, as run dirs do)."""
-    parent, base = videos.folder(run_dir, videos.PLAY), rundir.stamp()
-    folder, n = parent / base, 0
-    while folder.exists():
-        n += 1
-        folder = parent / f"{base}-{n}"
-    return folder
 
 
 def _check_rollout(episodes: int, seed: int) -> None:
@@ -241,7 +233,8 @@ def play(*, episodes: int = 10, seed: int = 0, show: Show = Show(),
     loaded = load(seed=seed, **where)
     try:
         return loaded, _rollout_shown(loaded.env, loaded.policy, episodes, seed, show,
-                                      loaded.run.dir, _own_folder(loaded.run.dir))
+                                      loaded.run.dir, videos.folder(loaded.run.dir, videos.PLAY),
+                                      stamped=True)
     finally:
         loaded.env.close()
 

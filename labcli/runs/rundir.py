@@ -272,15 +272,20 @@ def create(logs_dir: Path, framework: str, task: str, name: str | None = None) -
         raise LabError(f"cannot create the run directory under {parent}: {exc.strerror}",
                        "pass a writable --logs-dir") from exc
     check_writable(parent)
-    base = f"{stamp()}_{name}" if name else stamp()
+    return Run(unique_dir(parent, f"{stamp()}_{name}" if name else stamp()))
+
+
+def unique_dir(parent: Path, base: str) -> Path:
+    """A new directory `base` in `parent`, or `base-1`, `base-2`... where it exists (two runs,
+    or two plays' videos, in the same second)."""
     for n in range(1000):
         path = parent / (base if n == 0 else f"{base}-{n}")
         try:
             path.mkdir(mode=files.DIR_MODE)
         except FileExistsError:
             continue
-        return Run(path)
-    raise LabError(f"too many runs named {base} in {parent}")
+        return path
+    raise LabError(f"too many directories named {base} in {parent}")
 
 
 def stamp() -> str:

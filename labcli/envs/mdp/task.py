@@ -287,10 +287,13 @@ class RobotTask(Task):
             hook()
         if self._curriculum:
             self.steps += 1
-            self.weigh(self.reward_weights)
+            self._follow_curriculum()
 
     def weigh(self, weights: torch.Tensor) -> None:
         super().weigh(weights)
+        self._follow_curriculum()
+
+    def _follow_curriculum(self) -> None:
         for term in self._curriculum:
             term()
 
@@ -303,8 +306,7 @@ class RobotTask(Task):
     def state_restored(self) -> None:
         # The saved state has its start-up events' draws already: they must not run again.
         self._startups.clear()
-        if self._curriculum:
-            self.weigh(self.reward_weights)
+        self._follow_curriculum()
         for _, made in self._carriers:
             if hasattr(made, "restored"):
                 made.restored()
