@@ -6,6 +6,7 @@ import math
 
 from pydantic import Field
 
+from lab_manipulation.panda import FINGERS, PICKING
 from lab_manipulation.panda import ROBOT as PANDA
 from labcli.envs.mdp import config as c
 from labcli.envs.mdp.description import RobotDescription
@@ -71,7 +72,9 @@ class PandaReachConfig(c.RobotTaskConfig):
 # Isaac Lab's Isaac-Lift-Cube-Franka-v0 (manipulation/lift/lift_env_cfg.py with
 # config/franka/joint_pos_env_cfg.py), on Menagerie's cube scene (mjx_single_cube: a 4 x 4 x
 # 6 cm box on the floor in front of the arm): the arm's joints as in reach, the gripper open or
-# closed; the cube to be carried to a position drawn once per 5 s episode.
+# closed; the cube to be carried to a position drawn once per 5 s episode. Two changes made
+# the arm grasp: it starts from the scene's own home pose (`panda.PICK_HOME`), and lifting
+# pays only for a held cube (`LiftRewards`).
 class LiftCommands(c.Group):
     object_pose: c.UniformPoseCommand | None = c.UniformPoseCommand(
         body=CUBE, base_body="link0", resampling_time_range=(5.0, 5.0), pos_x=(0.4, 0.6),
@@ -89,14 +92,20 @@ class LiftObservations(c.Group):
 
 
 class LiftRewards(c.Group):
+    # Isaac Lab's terms and weights, and robosuite Lift's grasp: the cube between both
+    # fingers pays, and lifting and carrying pay only while it is held there. Without that,
+    # a cube batted into the air counted as lifted (the policies learnt to bat it: it flew up
+    # to a metre away) and none learnt to grasp.
     reaching_object: c.ObjectReach | None = c.ObjectReach(weight=1.0, object=CUBE,
                                                           site="gripper", std=0.1)
-    lifting_object: c.ObjectLifted | None = c.ObjectLifted(weight=15.0, object=CUBE,
-                                                           minimal_height=LIFTED)
+    grasping_object: c.ObjectGrasped | None = c.ObjectGrasped(weight=2.0, object=CUBE,
+                                                              fingers=FINGERS)
+    lifting_object: c.ObjectLifted | None = c.ObjectLifted(
+        weight=15.0, object=CUBE, minimal_height=LIFTED, held_by=FINGERS)
     object_goal_tracking: c.ObjectGoalDistance | None = c.ObjectGoalDistance(
-        weight=16.0, object=CUBE, std=0.3, minimal_height=LIFTED)
+        weight=16.0, object=CUBE, std=0.3, minimal_height=LIFTED, held_by=FINGERS)
     object_goal_tracking_fine_grained: c.ObjectGoalDistance | None = c.ObjectGoalDistance(
-        weight=5.0, object=CUBE, std=0.05, minimal_height=LIFTED)
+        weight=5.0, object=CUBE, std=0.05, minimal_height=LIFTED, held_by=FINGERS)
     action_rate: c.ActionRateL2 | None = c.ActionRateL2(weight=-1e-4)
     joint_vel: c.JointVelL2 | None = c.JointVelL2(weight=-1e-4)
 
@@ -116,7 +125,7 @@ class LiftCurriculum(c.Group):
 
 
 class PandaLiftConfig(c.RobotTaskConfig):
-    robot: RobotDescription | None = PANDA
+    robot: RobotDescription | None = PICKING
     num_envs: int = Field(256, gt=0, le=2**20, description="parallel environments")
     episode_length_s: float = Field(5.0, gt=0, le=1e6, description="time-out, in seconds")
     # Isaac Lab's control at 50 Hz; physics at Menagerie's scene's 5 ms (Isaac Lab: 10 ms),

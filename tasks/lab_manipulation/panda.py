@@ -3,7 +3,11 @@ with its hand on a floor, simplified collision geoms), bolted to the world at `l
 servos keep Menagerie's gains (kp 1000 / 750 / 300 and kv 20 / 4 / 2 by joint pair) and its
 joints Franka's torque and speed limits; the default pose is Isaac Lab's (FRANKA_PANDA_CFG's
 init_state), the hand open. The arm's own weight is compensated, as Franka's controller does
-(Isaac Lab turns gravity off for its Panda); what it holds still weighs."""
+(Isaac Lab turns gravity off for its Panda); what it holds still weighs. The arm that picks
+(`PICKING`) starts from the cube scene's own `home` keyframe instead: the hand pointing down
+over the cube."""
+
+from typing import Any
 
 from labcli.envs.mdp.description import Actuators, RobotDescription
 from labcli.envs.spec import Menagerie
@@ -35,3 +39,12 @@ ROBOT = RobotDescription(
     home={"joint1": 0.0, "joint2": -0.569, "joint3": 0.0, "joint4": -2.810, "joint5": 0.0,
           "joint6": 3.037, "joint7": 0.741, "finger_joint.": 0.04},
 )
+
+# Menagerie's mjx_single_cube `home`: the hand 35 cm over the floor, pointing down. From Isaac
+# Lab's pose the hand leans 45 degrees forward and must turn while it reaches; exploring
+# that, the arm swung through the light cube and batted it away rather than grasping it.
+PICK_HOME: dict[str, Any] = {"joint1": 0.0, "joint2": 0.3, "joint3": 0.0, "joint4": -1.57079,
+                             "joint5": 0.0, "joint6": 2.0, "joint7": -0.7853,
+                             "finger_joint.": 0.04}
+PICKING = ROBOT.model_copy(update={"home": PICK_HOME})
+FINGERS = ["left_finger", "right_finger"]

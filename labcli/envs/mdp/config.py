@@ -439,7 +439,23 @@ class ObjectReach(ObjectTerm, RewardTerm):
     std: float = Field(0.1, gt=0, description="m")
 
 
-class ObjectLifted(ObjectTerm, RewardTerm):
+class HeldObjectTerm(ObjectTerm):
+    """A term about an object that counts only while held, where `held_by` is given."""
+
+    held_by: list[str] | None = Field(None, description="finger bodies that must all touch "
+                                      "the object for it to count (a batted object does not); "
+                                      "None: any")
+
+
+class ObjectGrasped(ObjectTerm, RewardTerm):
+    """1 where each of the `fingers` bodies touches the object: robosuite Lift's grasp
+    reward."""
+
+    impl: ClassVar[str] = "labcli.envs.mdp.rewards:object_grasped"
+    fingers: list[str] = Field(min_length=1, description="the gripper's finger bodies")
+
+
+class ObjectLifted(HeldObjectTerm, RewardTerm):
     """1 where the object's origin is above `minimal_height` (m, world z): Isaac Lab's
     `object_is_lifted`."""
 
@@ -447,7 +463,7 @@ class ObjectLifted(ObjectTerm, RewardTerm):
     minimal_height: float = Field(0.04, description="m")
 
 
-class ObjectGoalDistance(PoseCommandRef, ObjectTerm, RewardTerm):
+class ObjectGoalDistance(PoseCommandRef, HeldObjectTerm, RewardTerm):
     """Where the object is lifted (above `minimal_height`), 1 - tanh(its distance to the
     command's target position / std): Isaac Lab's `object_goal_distance`."""
 

@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING
 import mujoco
 import torch
 
-from labcli.envs.mdp import math, names
+from labcli.envs.mdp import math, names, sensors
 from labcli.errors import LabError
 
 if TYPE_CHECKING:
@@ -59,9 +59,32 @@ class FreeBody:
         self.quat = task.sim.qpos[:, qa + 3:qa + 7]
 
 
+class Grasp:
+    """Whether each env's object is held, `[n]` (bool): every one of the finger bodies (their
+    subtrees) touches it. A pushed or batted object touches one finger at most."""
+
+    def __init__(self, task: RobotTask, body: str, fingers: list[str]):
+        self.count = len(fingers)
+        self.contacts = sensors.columns(task, [[s.name] for s in grasp_sensors(body, fingers)])
+        self.robot, self.key = task.robot, ("held", body, tuple(fingers))
+
+    def __call__(self) -> torch.Tensor:
+        # Each sensor's 4 values: the number of contacts, then their net force.
+        return self.robot.per_state(self.key, lambda: (
+            self.contacts().view(-1, self.count, 4)[:, :, 0] > 0).all(dim=1))
+
+
+def grasp_sensors(body: str, fingers: list[str]) -> list[sensors.Sensor]:
+    return [sensors.subtree_contact(finger, body, "body") for finger in fingers]
+
+
 def fixed_frame(task: RobotTask, body: str) -> FixedFrame:
     return task.shared(("fixed_frame", body), lambda: FixedFrame(task, body))
 
 
 def free_body(task: RobotTask, body: str) -> FreeBody:
     return task.shared(("free_body", body), lambda: FreeBody(task, body))
+
+
+def grasp(task: RobotTask, body: str, fingers: list[str]) -> Grasp:
+    return task.shared(("grasp", body, tuple(fingers)), lambda: Grasp(task, body, fingers))

@@ -101,23 +101,48 @@ class object_ee_distance:  # noqa: N801
         return 1.0 - torch.tanh(distance * self.inv_std)
 
 
-class object_is_lifted:  # noqa: N801
-    def __init__(self, task: RobotTask, cfg: c.ObjectLifted):
-        self.object, self.cfg = objects.free_body(task, cfg.object), cfg
+class object_grasped:  # noqa: N801
+    def __init__(self, task: RobotTask, cfg: c.ObjectGrasped):
+        self.held = objects.grasp(task, cfg.object, cfg.fingers)
+
+    @staticmethod
+    def sensors(model: mujoco.MjModel, cfg: c.ObjectGrasped) -> list[sensors.Sensor]:
+        return objects.grasp_sensors(cfg.object, cfg.fingers)
 
     def __call__(self) -> torch.Tensor:
-        return (self.object.height > self.cfg.minimal_height).to(self.object.height.dtype)
+        return self.held().float()
 
 
-class object_goal_distance:  # noqa: N801
-    def __init__(self, task: RobotTask, cfg: c.ObjectGoalDistance):
+class _Lifted:
+    """Where the object is above the term's minimal height, and held if it asks."""
+
+    def __init__(self, task: RobotTask, cfg: c.ObjectLifted | c.ObjectGoalDistance):
         self.object, self.cfg = objects.free_body(task, cfg.object), cfg
+        self.held = None if cfg.held_by is None else objects.grasp(task, cfg.object,
+                                                                    cfg.held_by)
+
+    @staticmethod
+    def sensors(model: mujoco.MjModel, cfg: c.HeldObjectTerm) -> list[sensors.Sensor]:
+        return [] if cfg.held_by is None else objects.grasp_sensors(cfg.object, cfg.held_by)
+
+    def lifted(self) -> torch.Tensor:
+        lifted = self.object.height > self.cfg.minimal_height
+        return lifted if self.held is None else lifted.logical_and_(self.held())
+
+
+class object_is_lifted(_Lifted):  # noqa: N801
+    def __call__(self) -> torch.Tensor:
+        return self.lifted().to(self.object.height.dtype)
+
+
+class object_goal_distance(_Lifted):  # noqa: N801
+    def __init__(self, task: RobotTask, cfg: c.ObjectGoalDistance):
+        super().__init__(task, cfg)
         self.command, self.inv_std = task.command(cfg.command), 1.0 / cfg.std
 
     def __call__(self) -> torch.Tensor:
         distance = torch.linalg.vector_norm(self.command.target_world() - self.object.pos, dim=1)
-        lifted = self.object.height > self.cfg.minimal_height
-        return (1.0 - torch.tanh(distance * self.inv_std)).mul_(lifted)
+        return (1.0 - torch.tanh(distance * self.inv_std)).mul_(self.lifted())
 
 
 def power_consumption(task: RobotTask, cfg: c.Energy) -> torch.Tensor:
