@@ -51,6 +51,15 @@ class ReachEvents(c.Group):
         position_range=(0.5, 1.5), velocity_range=(0.0, 0.0))
 
 
+class ReachCurriculum(c.Group):
+    # Isaac Lab's: the smoothness penalties 50 and 10 times heavier after 4,500 env steps
+    # (about 190 iterations of 24 steps), once the hand finds its targets.
+    action_rate: c.RewardWeight | None = c.RewardWeight(term="action_rate", weight=-0.005,
+                                                        num_steps=4500)
+    joint_vel: c.RewardWeight | None = c.RewardWeight(term="joint_vel", weight=-0.001,
+                                                      num_steps=4500)
+
+
 class PandaReachConfig(c.RobotTaskConfig):
     robot: RobotDescription | None = PANDA
     num_envs: int = Field(256, gt=0, le=2**20, description="parallel environments")
@@ -65,6 +74,7 @@ class PandaReachConfig(c.RobotTaskConfig):
     observations: ReachObservations = ReachObservations()
     rewards: ReachRewards = ReachRewards()
     events: ReachEvents = ReachEvents()
+    curriculum: ReachCurriculum = ReachCurriculum()
     success: c.PoseReached | None = c.PoseReached(position_error=0.05, orientation_error=0.35)
     rewards_per_second: bool = True
 
