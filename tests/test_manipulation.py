@@ -308,6 +308,20 @@ def test_a_cube_in_the_air_counts_as_lifted_only_between_both_fingers(held_by, l
         env.close()
 
 
+@pytest.mark.parametrize(("override", "message", "hint"), [
+    ('env.rewards.grasping_object.fingers=["left_fingr"]', "has no body named 'left_fingr'",
+     "did you mean 'left_finger', 'right_finger'?"),
+    ("env.rewards.reaching_object.site=hand", "has no site named 'hand'",
+     "its sites are 'gripper'"),
+])
+def test_a_term_s_sensor_on_a_name_the_model_lacks_is_one_line(override, message, hint):
+    """Before, MuJoCo's compile error of the sensor: a traceback."""
+    with pytest.raises(LabError) as err:
+        lift(1, override)
+    assert err.value.message == f"model 'panda scene' {message}"
+    assert err.value.hint == hint
+
+
 @pytest.mark.gpu
 @needs_warp()
 def test_both_backends_grasp_and_lift_the_cube_alike():

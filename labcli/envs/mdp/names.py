@@ -46,8 +46,9 @@ def resolve(model: mujoco.MjModel, kind: str, patterns: Iterable[str]) -> list[i
         found = [i for i, name in enumerate(names) if regex.fullmatch(name)]
         if not found:
             close = difflib.get_close_matches(pattern, [n for n in names if n], n=3)
+            plural = "bodies" if kind == "body" else f"{kind}s"
             hint = (f"did you mean {', '.join(repr(c) for c in close)}?" if close else
-                    f"its {kind}s are {', '.join(repr(n) for n in names if n) or 'unnamed'}")
+                    f"its {plural} are {', '.join(repr(n) for n in names if n) or 'unnamed'}")
             raise LabError(f"model '{model_name(model)}' has no {kind} named '{pattern}'", hint)
         ids.update(found)
     return sorted(ids)

@@ -53,6 +53,14 @@ class Sensor:
     num: int = 1
 
 
+def check(model: mujoco.MjModel, sensor: Sensor) -> None:
+    """A one-line error (the closest names the model has) if the sensor's target or contact
+    reference is not in `model`: MuJoCo's own compile error is a traceback."""
+    for target, objtype in ((sensor.target, sensor.objtype), (sensor.ref, sensor.reftype)):
+        if target is not None:
+            names.resolve_one(model, "body" if objtype == "xbody" else objtype, target)
+
+
 def body_names(model: mujoco.MjModel, patterns: Sequence[str]) -> list[str]:
     all_bodies = names.all_names(model, "body")
     return [all_bodies[i] for i in names.resolve(model, "body", patterns)]

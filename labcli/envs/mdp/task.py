@@ -99,6 +99,7 @@ class RobotTask(Task):
                   for s in getattr(impl_of(term), "sensors", lambda m, t: [])(model, term)]
         if needed:
             for sensor in needed:
+                sensors.check(model, sensor)
                 sensors.add(spec, sensor)
             model = spec.compile()
         models.set_options(model, cfg)
