@@ -442,9 +442,9 @@ class ObjectReach(ObjectTerm, RewardTerm):
 class HeldObjectTerm(ObjectTerm):
     """A term about an object that counts only while held, where `held_by` is given."""
 
-    held_by: list[str] | None = Field(None, description="finger bodies that must all touch "
-                                      "the object for it to count (a batted object does not); "
-                                      "None: any")
+    held_by: list[str] | None = Field(None, min_length=1, description="finger bodies that must "
+                                      "all touch the object for it to count (a batted object "
+                                      "does not); None: any")
 
 
 class ObjectGrasped(ObjectTerm, RewardTerm):
