@@ -48,6 +48,21 @@ def median_after_two(values: list[float]) -> float | None:
     return statistics.median(values[2:] or values) if values else None
 
 
+def figures(run_dir: Path, success: float) -> dict:
+    """What a finished (or stopped) run's summary and TensorBoard events say: its seconds and
+    steps of training, final success, median steps/s, and the seconds and steps until the
+    logged success rate first reached `success` (None if never)."""
+    summary = json.loads((run_dir / "summary.json").read_text())
+    reached = time_to_success(run_dir, success)
+    return {
+        "state": summary["state"], "training_s": summary["wall_time_s"],
+        "steps": summary["steps"], "final_success": summary["success_rate"],
+        "steps_per_s": median_after_two(scalars(run_dir, metrics.STEPS_PER_S)),
+        "success_s": reached[0] if reached else None,
+        "success_steps": reached[1] if reached else None,
+    }
+
+
 def train(task: str, framework: str, run: str, success: float) -> dict:
     nproc, *extra = shlex.split(run)
     cmd = ["lab", "train", "--task", task, "--framework", framework, "--backend", "warp",
@@ -61,16 +76,10 @@ def train(task: str, framework: str, run: str, success: float) -> dict:
             print(f"{shlex.join(cmd)}: exit {done.returncode}\n{done.stderr[-3000:]}", flush=True)
             return {"framework": framework, "run": run, "exit": done.returncode}
         (run_dir,) = Path(logs, framework, task).iterdir()
-        summary = json.loads((run_dir / "summary.json").read_text())
-        reached = time_to_success(run_dir, success)
         row = {
             "framework": framework, "run": run, "gpus": int(nproc), "wall_s": wall,
-            "training_s": summary["wall_time_s"], "steps": summary["steps"],
-            "final_success": summary["success_rate"],
-            "steps_per_s": median_after_two(scalars(run_dir, metrics.STEPS_PER_S)),
+            **figures(run_dir, success),
             "learning_s": median_after_two(scalars(run_dir, LEARNING_TIME.get(framework, ""))),
-            "success_s": reached[0] if reached else None,
-            "success_steps": reached[1] if reached else None,
         }
     print(json.dumps(row), flush=True)
     return row

@@ -31,10 +31,7 @@ import tempfile
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_scale import conclude, median_after_two, scalars  # noqa: E402
-
-from labcli.envs import metrics  # noqa: E402
-from labcli.runs.bench import time_to_success  # noqa: E402
+from bench_scale import conclude, figures  # noqa: E402
 
 # Seconds of training to success on a 2-core machine that a robot task should take at its
 # defaults: ant and humanoid as Isaac Lab's classic tasks, the robots as a laptop allows.
@@ -63,16 +60,8 @@ def train(task: str, framework: str, backend: str, seed: int, success: float) ->
             print(f"{shlex.join(cmd)}: exit {proc.returncode}\n{err[-3000:]}", flush=True)
             return {"task": task, "seed": seed, "exit": proc.returncode}
         (run_dir,) = Path(logs, framework, task).iterdir()
-        summary = json.loads((run_dir / "summary.json").read_text())
-        reached = time_to_success(run_dir, success)
-        row = {
-            "task": task, "framework": framework, "seed": seed, "state": summary["state"],
-            "training_s": summary["wall_time_s"], "steps": summary["steps"],
-            "final_success": summary["success_rate"],
-            "steps_per_s": median_after_two(scalars(run_dir, metrics.STEPS_PER_S)),
-            "success_s": reached[0] if reached else None,
-            "success_steps": reached[1] if reached else None,
-        }
+        row = {"task": task, "framework": framework, "seed": seed,
+               **figures(run_dir, success)}
     print(json.dumps(row), flush=True)
     return row
 
