@@ -85,10 +85,12 @@ def _array(x: Any) -> np.ndarray:
 
 def train_small(name: str, logs_dir: Path, iterations: int, overrides: Sequence[str],
                 num_envs: int = NUM_ENVS, **kwargs: Any) -> TrainOutcome:
-    """A quiet training run of cartpole with framework `name`, for tests."""
+    """A quiet training run of cartpole with framework `name`, for tests (its lines go to
+    `console`, if given)."""
     return training.train(TASK, name, num_envs=num_envs, max_iterations=iterations,
                           overrides=list(overrides), logs_dir=logs_dir, seed=kwargs.pop("seed", 0),
-                          console=Console(file=io.StringIO()), command=["lab", "test"], **kwargs)
+                          console=kwargs.pop("console", None) or Console(file=io.StringIO()),
+                          command=["lab", "test"], **kwargs)
 
 
 def make_env(num_envs: int = NUM_ENVS, device: str = "cpu", **cfg: Any) -> LabVecEnv:

@@ -4,6 +4,7 @@ count)."""
 
 from __future__ import annotations
 
+import io
 from pathlib import Path
 
 import gymnasium as gym
@@ -13,6 +14,7 @@ import torch
 from lab_skrl import offpolicy
 from lab_skrl.offpolicy import memory_path
 from lab_skrl.sac import SquashedActor
+from rich.console import Console
 from skrl.memories.torch import RandomMemory
 from torch.distributions import Normal, TransformedDistribution
 from torch.distributions.transforms import AffineTransform, TanhTransform
@@ -67,6 +69,38 @@ def test_a_checkpoint_saves_the_replay_memory_beside_it(tmp_path):
     assert saved["memory_index"] == 16 and not saved["filled"]
     assert saved["tensors"]["observations"].shape[:2] == (16, 4)
     assert memory_path(checkpoint).name == "memory_2.pt"
+
+
+def test_only_the_newest_checkpoint_keeps_the_replay_memory_and_an_older_one_resumes_empty(
+        tmp_path, monkeypatch):
+    # A memory of a million transitions is hundreds of MB: one beside every checkpoint took
+    # gigabytes within minutes.
+    spec = registry.get_framework("skrl_sac")
+    outcome = testing.train_small("skrl_sac", tmp_path / "run", 3,
+                                  [*SMALL, "agent.save_interval=1"])
+    run_dir = outcome.run.dir
+    found = spec.checkpoints(run_dir)
+    assert [c.iteration for c in found] == [1, 2, 3]
+    assert [memory_path(c.path).exists() for c in found] == [False, False, True]
+    assert all(checkpoints.complete(spec, c) for c in found)
+    assert "memory_1.pt" not in (run_dir / "checkpoint_1.json").read_text()
+    loaded = {}
+    original = offpolicy.load_memory
+
+    def load(memory, checkpoint):
+        original(memory, checkpoint)
+        loaded.update(index=memory.memory_index, filled=memory.filled)
+
+    monkeypatch.setattr(offpolicy, "load_memory", load)
+    said = io.StringIO()
+    resumed = testing.train_small("skrl_sac", tmp_path / "run", 4, SMALL, checkpoint=found[0].path,
+                                  console=Console(file=said, width=300))
+    assert loaded == {"index": 0, "filled": False}
+    assert ("note: model_1.pt holds no replay memory (only a run's newest checkpoint keeps it); "
+            "the resumed run starts with an empty one") in said.getvalue()
+    assert resumed.summary["iterations"] == 4
+    # The resumed run's checkpoint 4 is the newest now: 3's memory went.
+    assert [memory_path(c.path).exists() for c in spec.checkpoints(run_dir)] == [False] * 3 + [True]
 
 
 def test_a_checkpoint_without_its_replay_memory_is_not_resumed(tmp_path):

@@ -65,6 +65,11 @@ class FrameworkSpec:
     task_defaults: Mapping[str, Mapping[str, Mapping[str, Any]]] = field(default_factory=dict)
     checkpoint_prefix: str = "model_"
     checkpoint_suffix: str = ".pt"
+    # Companions only a run's newest checkpoint keeps, by file-name prefix, and what each is
+    # (e.g. {"memory_": "replay memory"}): large, and needed only to resume exactly. An older
+    # checkpoint loses them once a newer one is written; it still plays, exports and resumes,
+    # without them.
+    newest_only: Mapping[str, str] = field(default_factory=dict)
     # Trains on several ranks (torchrun, `lab train --nproc`): the library averages gradients
     # over torch.distributed's default group and keeps its normalizers equal on every rank.
     data_parallel: bool = False

@@ -14,6 +14,7 @@ import errno
 import hashlib
 import json
 import os
+import re
 import shutil
 import tempfile
 import zipfile
@@ -72,6 +73,7 @@ def write(directory: Path, fw: FrameworkSpec, iteration: int, save: Callable[[Pa
             if check is not None:
                 check(model)
             _publish(staging, directory, iteration, fw.name, figures, durable)
+            _drop_older_companions(directory, fw, iteration)
         except (OSError, RuntimeError, LabError) as exc:
             # The staging dir is lab's own: gone, it was removed under lab, whatever the
             # library (or the check reading the model back) said of its missing file (`rm -rf`
@@ -114,6 +116,35 @@ def _publish(staging: Path, directory: Path, iteration: int, framework: str,
                 **({"figures": figures} if figures else {})}
     files.write_atomic(manifest_path(directory, iteration), json.dumps(manifest, indent=2) + "\n",
                        below=directory)
+
+
+def _drop_older_companions(directory: Path, fw: FrameworkSpec, iteration: int) -> None:
+    """Remove `fw.newest_only`'s files of the checkpoints before `iteration`, each left
+    complete: its manifest is rewritten without them before they go, so a kill in between
+    leaves a complete checkpoint beside a file it no longer lists. A file that cannot be
+    removed stays: it costs room, not work."""
+    for prefix in fw.newest_only:
+        for path in directory.glob(f"{prefix}*"):
+            match = re.match(re.escape(prefix) + r"(\d+)\D", path.name)
+            if match is None or int(match.group(1)) >= iteration:
+                continue
+            manifest = manifest_path(directory, int(match.group(1)))
+            try:
+                data = _read_manifest(manifest)
+                if path.name in data["files"]:
+                    del data["files"][path.name]
+                    files.write_atomic(manifest, json.dumps(data, indent=2) + "\n",
+                                       below=directory)
+                files.remove(path)
+            except (OSError, ValueError, UnicodeDecodeError, LabError):
+                continue
+
+
+def missing_companions(fw: FrameworkSpec, checkpoint: Checkpoint) -> list[str]:
+    """What of `fw.newest_only` `checkpoint` does not hold (it was not its run's newest)."""
+    directory, n = checkpoint.path.parent, checkpoint.iteration
+    return [what for prefix, what in fw.newest_only.items()
+            if not any(directory.glob(f"{prefix}{n}.*"))]
 
 
 def rewrite(source: Path, fw: FrameworkSpec, iteration: int, target: Path,

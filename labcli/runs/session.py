@@ -134,6 +134,10 @@ class _Session:
                 loading.policy_of(fw, plan.resume, env, agent_cfg)
                 resume_state = _resume_state(run_, plan.resume, env, env_cfg, self.console,
                                              ranks)
+                for what in checkpoints.missing_companions(fw.spec, plan.resume):
+                    self.console.print(f"note: {plan.resume.path.name} holds no {what} (only "
+                                       "a run's newest checkpoint keeps it); the resumed run "
+                                       "starts with an empty one", highlight=False)
             wrappers.validate(_pipeline(fw, agent_cfg, self.video, None), fw.name)
             if self.video is not None:
                 env.render()  # no GL, or an env that cannot render, fails before a run dir

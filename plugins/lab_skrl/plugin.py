@@ -37,8 +37,9 @@ def _off_policy(algorithm: str, framework: str, description: str) -> FrameworkSp
         agent_config=f"lab_skrl.config:Skrl{algorithm.upper()}Config",
         wrappers=(dataclasses.replace(ADAPTER, name=f"{name}.adapter", framework=name),),
         library="skrl", task_defaults=OFF_POLICY_DEFAULTS,
-        description=f"skrl {description} (off-policy; its replay memory is saved with each "
-                    "checkpoint)")
+        newest_only={"memory_": "replay memory"},
+        description=f"skrl {description} (off-policy; its replay memory is saved with the "
+                    "newest checkpoint)")
 
 
 SAC_SPEC = _off_policy("sac", "SkrlSACFramework", "SAC, tanh-squashed Gaussian actor")
