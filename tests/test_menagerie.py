@@ -267,12 +267,18 @@ def test_info_config_show_and_list_name_the_model(plugin, tmp_path):
     assert first.startswith("# model: MuJoCo Menagerie's unitree_go1 (Unitree Go1), entry scene")
     assert f"mujoco-menagerie {mm.__version__}" in first
 
-    listed = lab("list", logs=tmp_path)
-    row = next(line for line in listed.stdout.splitlines() if line.split()[:1] == [TASK])
-    assert "menagerie:unitree_go1/scene" in row
-    cartpole = next(line for line in listed.stdout.splitlines()
-                    if line.split()[:1] == ["cartpole"])
-    assert "cartpole.xml" in cartpole
+    listed = lab("list", logs=tmp_path).stdout
+    assert "model: menagerie:unitree_go1/scene" in listed_row(listed, TASK)
+    assert "model: cartpole.xml" in listed_row(listed, "cartpole")
+
+
+def listed_row(listed: str, name: str) -> str:
+    """The lines of `lab list`'s row for `name`: its own and the indented ones after it."""
+    lines = listed.splitlines()
+    start = next(i for i, line in enumerate(lines) if line.split()[:1] == [name])
+    end = next((i for i in range(start + 1, len(lines))
+                if lines[i][:2].strip()), len(lines))
+    return "\n".join(lines[start:end])
 
 
 def test_info_says_where_the_files_would_come_from_and_downloads_nothing(plugin, tmp_path):

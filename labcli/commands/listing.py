@@ -3,8 +3,12 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from labcli.commands.common import out, table
+
+if TYPE_CHECKING:
+    from rich.text import Text
 
 
 def list_() -> None:
@@ -24,14 +28,17 @@ def list_() -> None:
     for kind, title in ((registry.TASK, "Tasks"), (registry.FRAMEWORK, "Frameworks"),
                         (registry.WRAPPER, "Wrappers")):
         tasks = kind == registry.TASK
-        model = (Column("model", no_wrap=True),) if tasks else ()
-        rows = table("name", "description", *model, "provided by", title=title)
+        # A task's model goes under its description: a column of its own squeezed the
+        # descriptions of an 80-column terminal to a few words a line.
+        rows = table(Column("name", no_wrap=True), "description",
+                     Column("provided by", no_wrap=True), title=title)
         for name in reg.names(kind):
             item, provider = reg.items[kind][name]
-            rows.add_row(name, item.description, *((_model(item.model),) if tasks else ()),
-                         str(provider))
+            rows.add_row(name, _described(item.description, _model(item.model)) if tasks
+                         else item.description, str(provider))
         if tasks:
-            rows.add_row(f"{gym_spec.PREFIX}<id>", gym_spec.DESCRIPTION, "gymnasium's",
+            rows.add_row(f"{gym_spec.PREFIX}<id>",
+                         _described(gym_spec.DESCRIPTION, "gymnasium's"),
                          f"gymnasium {version('gymnasium')}")
         out().print(rows)
     failures = [*reg.failures, *reg.unloadable()]
@@ -40,6 +47,12 @@ def list_() -> None:
         for failure in failures:
             rows.add_row(failure.plugin, str(failure.provider), failure.error)
         out().print(rows)
+
+
+def _described(description: str, model: str) -> Text:
+    from rich.text import Text
+
+    return Text.assemble(description, "\n", (f"model: {model}", "dim"))
 
 
 def _model(model: object) -> str:
