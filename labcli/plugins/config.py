@@ -4,7 +4,7 @@ loading plugins imports no pydantic."""
 
 from __future__ import annotations
 
-from typing import ClassVar
+from typing import Any, ClassVar
 
 from pydantic import BaseModel, ConfigDict, Field
 
@@ -29,6 +29,10 @@ class AgentConfig(BaseModel):
         """Refuse settings that cannot work with `num_envs` envs, before anything is built: a
         LabError naming the key (more mini-batches than samples, say). The default checks
         nothing."""
+
+    def check_env(self, env: Any) -> None:
+        """Refuse settings the built env cannot serve (a symmetry its task does not declare),
+        before a run dir exists: a LabError. The default checks nothing."""
 
     def memory(self, num_envs: int, observations: int, actions: int) -> dict[str, int]:
         """Bytes the learner will allocate, by the setting that decides them

@@ -128,6 +128,7 @@ class _Session:
         env = make_env(plan.spec, env_cfg, backend=plan.backend, device=self.device, seed=seed)
         try:
             _check_memory(agent_cfg, env, self.device)
+            agent_cfg.check_env(env)
             resume_state = None
             if plan.resume is not None:
                 # A corrupt, mismatched or NaN checkpoint fails here, before anything is written.

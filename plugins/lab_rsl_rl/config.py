@@ -3,7 +3,7 @@ sets them."""
 
 from __future__ import annotations
 
-from typing import ClassVar, Literal
+from typing import Any, ClassVar, Literal
 
 from pydantic import Field, PositiveInt
 
@@ -18,7 +18,8 @@ class RslRlPpoConfig(AgentConfig):
     resumable: ClassVar[frozenset[str]] = AgentConfig.resumable | {
         "learning_rate", "schedule", "desired_kl", "num_learning_epochs", "num_mini_batches",
         "gamma", "lam", "clip_param", "entropy_coef", "value_loss_coef",
-        "use_clipped_value_loss", "max_grad_norm", "cuda_graph", "kl_grows_with_ranks"}
+        "use_clipped_value_loss", "max_grad_norm", "cuda_graph", "kl_grows_with_ranks",
+        "symmetry_augmentation", "mirror_loss_coef"}
 
     num_steps_per_env: int = Field(24, gt=0, description="steps per env per iteration")
     actor_hidden_dims: list[PositiveInt] = Field(default_factory=lambda: [64, 64])
@@ -46,6 +47,13 @@ class RslRlPpoConfig(AgentConfig):
     max_grad_norm: float = Field(1.0, gt=0)
     cuda_graph: bool = Field(True, description="on a GPU, replay each update's mini-batch "
                              "steps as one CUDA graph (false: RSL-RL's own update)")
+    # RSL-RL's symmetry extension, with the mirror image the task's robot description declares
+    # (labcli.envs.mdp.symmetry). Either one makes the update RSL-RL's own, not a CUDA graph.
+    symmetry_augmentation: bool = Field(
+        False, description="learn from each mini-batch and its left-right mirror image")
+    mirror_loss_coef: float = Field(
+        0.0, ge=0, description="weight of the mirror loss: the policy's action for a mirrored "
+        "observation against its mirrored action (0: off)")
 
     def kl_target(self, world_size: int) -> float | None:
         """The adaptive learning rate's KL target in a run of `world_size` ranks."""
@@ -57,6 +65,16 @@ class RslRlPpoConfig(AgentConfig):
         samples = self.num_steps_per_env * num_envs
         if self.num_mini_batches > samples:
             raise too_many_batches("agent.num_mini_batches", self.num_mini_batches, samples)
+
+    @property
+    def symmetric(self) -> bool:
+        return self.symmetry_augmentation or self.mirror_loss_coef > 0
+
+    def check_env(self, env: Any) -> None:
+        if self.symmetric:
+            from labcli.envs.mdp.symmetry import mirror_of_env
+
+            mirror_of_env(env)
 
     def memory(self, num_envs: int, observations: int, actions: int) -> dict[str, int]:
         # RSL-RL's storage: actor and critic observations, actions, their means and std, and

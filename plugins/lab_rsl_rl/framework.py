@@ -15,6 +15,7 @@ from torch import nn
 
 from lab_rsl_rl.adapter import OBS_GROUP, RslRlVecEnv
 from lab_rsl_rl.config import RslRlPpoConfig
+from labcli.envs.mdp.symmetry import mirror_of_env
 from labcli.errors import LabError, first_line
 from labcli.plugins.framework import Framework, StopTraining, TrainContext
 from labcli.plugins.policy import (
@@ -67,6 +68,28 @@ def runner_config(cfg: RslRlPpoConfig, world_size: int = 1) -> dict[str, Any]:
     }
 
 
+def symmetry_config(cfg: RslRlPpoConfig, env: RslRlVecEnv) -> dict[str, Any] | None:
+    """RSL-RL's `symmetry_cfg` for the run: its augmentation function appends the mirror image
+    of each observation group and action batch (the task's `symmetry.Mirror`); None when the
+    config asks for no symmetry."""
+    if not cfg.symmetric:
+        return None
+    mirror = mirror_of_env(env.env)
+
+    def augment(env: Any, obs: TensorDict | None, actions: torch.Tensor | None
+                ) -> tuple[TensorDict | None, torch.Tensor | None]:
+        if obs is not None:
+            mirrored = TensorDict({k: mirror.observations(v) for k, v in obs.items()},
+                                  batch_size=obs.batch_size, device=obs.device)
+            obs = torch.cat([obs, mirrored], dim=0)
+        if actions is not None:
+            actions = torch.cat([actions, mirror.actions(actions)], dim=0)
+        return obs, actions
+
+    return {"data_augmentation_func": augment, "use_data_augmentation": cfg.symmetry_augmentation,
+            "use_mirror_loss": cfg.mirror_loss_coef > 0, "mirror_loss_coeff": cfg.mirror_loss_coef}
+
+
 class _LabLogger:
     """Stands in for RSL-RL's Logger inside the runner. lab's env already counts episodes on the
     device and TrainContext writes TensorBoard, progress and checkpoints, so this forwards the
@@ -107,9 +130,10 @@ class LabRunner(OnPolicyRunner):
 
     def __init__(self, env: RslRlVecEnv, cfg: RslRlPpoConfig, ctx: TrainContext):
         self._ranks = ctx.rank, ctx.world_size  # for _configure_multi_gpu, called by __init__
+        config = runner_config(cfg, ctx.world_size)
+        config["algorithm"]["symmetry_cfg"] = symmetry_config(cfg, env)
         with contextlib.redirect_stdout(io.StringIO()):  # it prints both models; lab has a bar
-            super().__init__(env, runner_config(cfg, ctx.world_size), log_dir=str(ctx.run_dir),
-                             device=ctx.device)
+            super().__init__(env, config, log_dir=str(ctx.run_dir), device=ctx.device)
         self.ctx = ctx
         self.alg.update_threads = ctx.update_threads
         self.info = {"observation_size": env.get_observations()[OBS_GROUP].shape[1],

@@ -46,4 +46,8 @@ ROBOT = RobotDescription(
     },
     feet=["left_foot", "right_foot"],
     foot_bodies=["left_ankle_roll_link", "right_ankle_roll_link"],
+    mirror={"^left_": "right_", "^right_": "left_"},
+    # Every joint's axis is along the base's x, y or z at the default pose, the same on both
+    # sides: those about x and z (the waist's too) change sign in the mirror image.
+    mirror_negated=[".*_roll_joint", ".*_yaw_joint"],
 )

@@ -15,6 +15,8 @@ MODEL = Menagerie("unitree_go1", "scene")
 # Unitree's URDF (go1_description): Ixx of the motor's rotor, kg m^2. Not imported from
 # go1_datasheet.py, whose MJCF writer imports MuJoCo: registering the tasks must not.
 ROTOR_INERTIA = 1.11842e-4
+# Unitree's quadrupeds: front and rear legs, right and left.
+QUADRUPED_MIRROR = {"^FR_": "FL_", "^FL_": "FR_", "^RR_": "RL_", "^RL_": "RR_"}
 
 ROBOT = RobotDescription(
     natural_frequency_hz=10.0,
@@ -28,4 +30,6 @@ ROBOT = RobotDescription(
     },
     feet=["FR", "FL", "RR", "RL"],
     foot_bodies=[".*_calf"],
+    mirror=QUADRUPED_MIRROR,
+    mirror_negated=[".*_hip_joint"],  # abduction, about the base's x axis
 )

@@ -7,6 +7,7 @@ torque motors: here they become position servos, targets within the joints' rang
 standing pose is Menagerie's `home` keyframe.
 """
 
+from lab_locomotion.go1 import QUADRUPED_MIRROR
 from labcli.envs.mdp.description import Actuators, RobotDescription
 from labcli.envs.spec import Menagerie
 
@@ -22,4 +23,6 @@ ROBOT = RobotDescription(
                           frictionloss=0.0),
     },
     foot_bodies=[".*_calf"],
+    mirror=QUADRUPED_MIRROR,
+    mirror_negated=[".*_hip_joint"],  # abduction, about the base's x axis
 )

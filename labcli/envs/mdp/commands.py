@@ -30,6 +30,7 @@ class UniformVelocityCommand:
 
     names = ["lin_vel_x", "lin_vel_y", "ang_vel_z"]
     units = ["m/s, root frame", "m/s, root frame", "rad/s"]
+    mirror_signs = (1.0, -1.0, -1.0)  # in the robot's left-right mirror image (symmetry.py)
     carried = ("command", "heading", "time_left", "heading_env", "standing_env", "forward_env",
                "errors", "steps", "mean_errors", "averaged_error")
 

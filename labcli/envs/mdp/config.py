@@ -147,6 +147,12 @@ class ObsTerm(RangeChecked):
     # The raw value's unit and convention, per column (before noise, clip and scale), which
     # `lab export` writes for deployers; a term made per column may give `units` instead.
     unit: ClassVar[str] = ""
+    # How the term's columns change in the robot's left-right mirror image (`symmetry.py`):
+    # "even" (they do not), "polar" (a vector in the base's frame: y flips), "axial" (an
+    # angular one: x and z flip), "joints" (by joint, as the robot description mirrors them),
+    # "actions" (by actuator, likewise), "scan" (a grid of points: y flips), "command" (the
+    # command's own); None: not known, and symmetric training refuses the term.
+    mirror: ClassVar[str | None] = None
     scale: float = 1.0
     clip: Range | None = None
     noise: float = Field(0.0, ge=0.0)
@@ -173,6 +179,7 @@ class BaseHeight(ObsTerm):
     """The root's height (m) above the ground under it: the terrain's surface, else z = 0."""
 
     impl: ClassVar[str] = "labcli.envs.mdp.observations:base_height"
+    mirror: ClassVar[str | None] = "even"
     unit: ClassVar[str] = "m, the root above the ground under it"
 
 
@@ -180,6 +187,7 @@ class BaseLinVel(ObsTerm):
     """The root body's linear velocity in its own frame (m/s)."""
 
     impl: ClassVar[str] = "labcli.envs.mdp.observations:base_lin_vel"
+    mirror: ClassVar[str | None] = "polar"
     unit: ClassVar[str] = "m/s, root frame"
 
 
@@ -187,6 +195,7 @@ class BaseAngVel(ObsTerm):
     """The root body's angular velocity in its own frame (rad/s)."""
 
     impl: ClassVar[str] = "labcli.envs.mdp.observations:base_ang_vel"
+    mirror: ClassVar[str | None] = "axial"
     unit: ClassVar[str] = "rad/s, root frame"
 
 
@@ -197,6 +206,7 @@ class ProjectedGravity(ObsTerm):
     yaw (rad) drawn per env at every episode's start, uniform in each key's range."""
 
     impl: ClassVar[str] = "labcli.envs.mdp.observations:projected_gravity"
+    mirror: ClassVar[str | None] = "polar"
     unit: ClassVar[str] = "gravity's unit vector, root frame (with a site: the site's)"
     site: str | None = Field(None, description="an IMU site: gravity in its frame")
     mounting_range: dict[str, Range] = Field(
@@ -256,6 +266,7 @@ class HeightScan(ObsTerm):
     order: x (back to front) fastest, then y (right to left). Needs env.terrain."""
 
     impl: ClassVar[str] = "labcli.envs.mdp.observations:height_scan"
+    mirror: ClassVar[str | None] = "scan"
     unit: ClassVar[str] = "m, the root above the terrain at each point, minus offset"
     length: float = Field(1.6, ge=0, description="m along the base's x")
     width: float = Field(1.0, ge=0, description="m along the base's y")
@@ -269,6 +280,7 @@ class JointPos(ObsTerm):
     """Joint positions relative to the default pose (rad or m)."""
 
     impl: ClassVar[str] = "labcli.envs.mdp.observations:joint_pos_rel"
+    mirror: ClassVar[str | None] = "joints"
     unit: ClassVar[str] = "rad (m for a slide joint) from the default pose"
 
 
@@ -276,6 +288,7 @@ class JointPosNormalized(ObsTerm):
     """Joint positions mapped from their limits to [-1, 1]."""
 
     impl: ClassVar[str] = "labcli.envs.mdp.observations:joint_pos_limit_normalized"
+    mirror: ClassVar[str | None] = "joints"
     unit: ClassVar[str] = "-1 to 1 over the joint's range"
 
 
@@ -283,6 +296,7 @@ class JointVel(ObsTerm):
     """Joint velocities (rad/s or m/s)."""
 
     impl: ClassVar[str] = "labcli.envs.mdp.observations:joint_vel_rel"
+    mirror: ClassVar[str | None] = "joints"
     unit: ClassVar[str] = "rad/s (m/s for a slide joint)"
 
 
@@ -290,12 +304,14 @@ class GeneratedCommands(CommandRef, ObsTerm):
     """The named command's current value (Isaac Lab's `generated_commands`)."""
 
     impl: ClassVar[str] = "labcli.envs.mdp.observations:generated_commands"
+    mirror: ClassVar[str | None] = "command"
 
 
 class LastAction(ObsTerm):
     """The action of the last step, as the policy sent it (before scaling)."""
 
     impl: ClassVar[str] = "labcli.envs.mdp.observations:last_action"
+    mirror: ClassVar[str | None] = "actions"
     unit: ClassVar[str] = "the policy's last action"
 
 

@@ -134,12 +134,26 @@ class RobotDescription(BaseModel):
                                           "positions (rad, m) by name or pattern, written as "
                                           "the model's keyframe 'home' (the others at qpos0); "
                                           "None: the model's own keyframes")
+    mirror: dict[str, str] = Field(default_factory=dict, description="the robot's left-right "
+                                   "symmetry: a joint's mirror image by name, each pattern "
+                                   "(searched) replaced as re.sub does, e.g. {'^left_': "
+                                   "'right_', '^right_': 'left_'}; a joint no pattern matches "
+                                   "is its own image; empty: not declared symmetric")
+    mirror_negated: Patterns = Field(default_factory=list, description="joints whose angle "
+                                     "changes sign in the mirror image: those turning about "
+                                     "the base's x or z axis (roll, yaw, abduction)")
 
     @model_validator(mode="after")
     def _scales_finite(self) -> RobotDescription:
         for actuators in self.actuators.values():
             actuators.scale(self.natural_frequency_hz, self.damping_ratio)
         return self
+
+    def mirrored(self, joint: str) -> tuple[str, float]:
+        """`joint`'s mirror image (a joint's name) and the sign its angle takes there."""
+        image = next((re.sub(p, r, joint, count=1) for p, r in self.mirror.items()
+                      if re.search(p, joint)), joint)
+        return image, -1.0 if any(re.fullmatch(p, joint) for p in self.mirror_negated) else 1.0
 
     def group_of(self, joint: str) -> tuple[str, Actuators] | None:
         """The first group whose patterns match `joint` whole; None if none does."""

@@ -1,0 +1,124 @@
+"""A robot task's left-right mirror image, as index maps with signs over its observations and
+actions: what symmetric data augmentation (RSL-RL's `symmetry_cfg`, Mittal et al., ICRA 2024)
+needs. A legged robot mirrored through its base's x-z plane sees each observation column turned
+into another (a left joint's into the right one's) with a sign; a policy that walks well acts
+the mirror image of its action there.
+
+The robot description declares which joint is which joint's image, and which change sign
+(`RobotDescription.mirror`, `mirror_negated`); each observation term's config class says how
+its columns change (`ObsTerm.mirror`). A term that says nothing, or a robot that declares no
+mirror, is one line, not a guess."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+import torch
+
+from labcli.errors import LabError
+
+if TYPE_CHECKING:
+    from labcli.envs.mdp.task import Built, RobotTask
+
+# The signs of a base-frame vector's x, y, z in the mirror image through the x-z plane: a
+# velocity's or gravity's y flips; an angular velocity's x and z.
+POLAR, AXIAL = (1.0, -1.0, 1.0), (-1.0, 1.0, -1.0)
+
+
+@dataclass(frozen=True)
+class Mirror:
+    """`observations(obs)[:, i] = obs_sign[i] * obs[:, obs_index[i]]`, and likewise for the
+    actions: both maps are their own inverses."""
+
+    obs_index: torch.Tensor
+    obs_sign: torch.Tensor
+    action_index: torch.Tensor
+    action_sign: torch.Tensor
+
+    def observations(self, obs: torch.Tensor) -> torch.Tensor:
+        return obs.index_select(-1, self.obs_index) * self.obs_sign.to(obs.dtype)
+
+    def actions(self, actions: torch.Tensor) -> torch.Tensor:
+        return actions.index_select(-1, self.action_index) * self.action_sign.to(actions.dtype)
+
+
+def mirror_of(task: RobotTask) -> Mirror:
+    """The mirror maps of `task`'s observations and actions, or a LabError saying what lacks
+    one."""
+    robot = task.cfg.robot
+    if robot is None or not robot.mirror:
+        raise LabError("symmetric training needs the robot's mirror image, and this task's robot "
+                       "description declares none",
+                       "set env.robot.mirror and env.robot.mirror_negated (docs/plugins.md), or "
+                       "train without symmetry")
+    joints = task.robot.joint_names
+    index, sign = [], []
+    for joint in joints:
+        image, flips = robot.mirrored(joint)
+        if image not in joints:
+            raise LabError(f"the mirror image of joint '{joint}' is '{image}', which the robot's "
+                           "actuators do not drive",
+                           "fix env.robot.mirror: each actuated joint's image is actuated too")
+        index.append(joints.index(image))
+        sign.append(flips)
+    actions = (index, sign)
+    obs_index: list[int] = []
+    obs_sign: list[float] = []
+    for built, names in zip(task._obs, task._obs_names, strict=True):
+        local, signs = _term_map(task, built, names, actions)
+        for _ in range(built.cfg.frames):  # each frame of the term, oldest first
+            obs_index += [len(obs_index) + i for i in local]
+            obs_sign += signs
+    assert len(obs_index) == len(task.observation_names)
+    device, dtype = task.ones.device, task.ones.dtype
+    return Mirror(torch.tensor(obs_index, device=device), torch.tensor(obs_sign, dtype=dtype,
+                                                                       device=device),
+                  torch.tensor(index, device=device), torch.tensor(sign, dtype=dtype,
+                                                                   device=device))
+
+
+def mirror_of_env(env: Any) -> Mirror:
+    """The mirror maps of a lab robot task's env (wrapped or not), or a LabError."""
+    from labcli.envs.mdp.task import RobotTask
+
+    task = getattr(env.unwrapped, "task", None)
+    if not isinstance(task, RobotTask):
+        raise LabError("symmetric training needs a robot task whose robot description "
+                       "declares its mirror image", "train this task without symmetry")
+    return mirror_of(task)
+
+
+def _term_map(task: RobotTask, built: Built, names: list[str],
+              actions: tuple[list[int], list[float]]) -> tuple[list[int], list[float]]:
+    """Where each of a term's columns comes from in the mirror image, and its sign there."""
+    kind = type(built.cfg).mirror
+    width = len(names)
+    identity = list(range(width))
+    if kind == "even":
+        return identity, [1.0] * width
+    if kind in ("polar", "axial") and width == 3:
+        return identity, list(POLAR if kind == "polar" else AXIAL)
+    if kind in ("joints", "actions") and width == len(actions[0]):
+        return actions
+    if kind == "scan":
+        points = {_point(name): i for i, name in enumerate(names)}
+        images = [points.get((x, 0.0 - y)) for x, y in points]
+        if None not in images:
+            return images, [1.0] * width
+    if kind == "command":
+        signs = getattr(built.made.command, "mirror_signs", None)
+        if signs is not None and len(signs) == width:
+            return identity, list(signs)
+    raise LabError(f"observation term '{built.name}' has no mirror image that lab knows "
+                   f"({type(built.cfg).__name__})",
+                   f"leave it out (--set env.observations.{built.name}=null) or train without "
+                   "symmetry")
+
+
+def _point(name: str) -> tuple[float, float]:
+    """A height-scan column's point (`term.x,y`, as `height_scan` names them), rounded as
+    named, with -0 as 0."""
+    x, y = (round(float(v), 2) + 0.0 for v in name.split(".", 1)[1].split(","))
+    return x, y
+
