@@ -16,7 +16,7 @@ from labcli.gym import make_env
 from labcli.runs import plot, training
 
 pytestmark = [needs_menagerie("unitree_go1"), needs_menagerie("unitree_go2"),
-              needs_menagerie("unitree_g1")]
+              needs_menagerie("unitree_g1"), needs_menagerie("franka_emika_panda")]
 
 # Nothing that would break the symmetry of two envs: no noise, pushes or per-env masses.
 STILL = ["env.observation_noise=false", "env.events.push_robot=null",
@@ -104,15 +104,18 @@ def test_the_mirror_image_of_a_state_moves_as_its_mirror_image_under_mirrored_ac
 
 
 def test_a_robot_without_a_declared_mirror_is_one_line(tmp_path):
-    # go1-rough's Go1 is the datasheet model, with no robot description.
-    with pytest.raises(LabError, match="declares none"):
+    # go1-rough's Go1 is the datasheet model, with no robot description; panda-reach's Panda
+    # declares no mirror.
+    with pytest.raises(LabError, match="has no robot description"):
         mirror_of(make_env("go1-rough", num_envs=1).task)
+    with pytest.raises(LabError, match="declares none"):
+        mirror_of(make_env("panda-reach", num_envs=1).task)
     result = CliRunner().invoke(app, [
         "train", "--task", "ant", "--framework", "rsl_rl", "--num-envs", "2",
         "--max-iterations", "1", "--set", "agent.symmetry_augmentation=true"],
         env={"LAB_LOGS_DIR": str(tmp_path), "COLUMNS": "200"})
     assert result.exit_code == 2, result.output
-    assert "declares none" in result.stderr and "Traceback" not in result.output
+    assert "has no robot description" in result.stderr and "Traceback" not in result.output
     assert not any(tmp_path.rglob("run.json"))
 
 

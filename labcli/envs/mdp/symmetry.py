@@ -47,7 +47,11 @@ def mirror_of(task: RobotTask) -> Mirror:
     """The mirror maps of `task`'s observations and actions, or a LabError saying what lacks
     one."""
     robot = task.cfg.robot
-    if robot is None or not robot.mirror:
+    if robot is None:
+        raise LabError("symmetric training needs the robot's mirror image, and this task has no "
+                       "robot description (env.robot) to declare one",
+                       "train it without symmetry")
+    if not robot.mirror:
         raise LabError("symmetric training needs the robot's mirror image, and this task's robot "
                        "description declares none",
                        "set env.robot.mirror and env.robot.mirror_negated (docs/plugins.md), or "
