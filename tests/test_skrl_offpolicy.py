@@ -56,6 +56,21 @@ def test_a_resume_after_the_replay_memory_wrapped_around_equals_an_unbroken_run(
     assert testing.check_resume(name, tmp_path, overrides) == 0.0
 
 
+def memory_loads(monkeypatch) -> dict:
+    """What the next resume's replay memory holds once loaded: where it writes next, whether it
+    is full, its rewards."""
+    loaded = {}
+    original = offpolicy.load_memory
+
+    def load(memory, checkpoint):
+        original(memory, checkpoint)
+        loaded.update(index=memory.memory_index, filled=memory.filled,
+                      rewards=memory.tensors["rewards"].clone())
+
+    monkeypatch.setattr(offpolicy, "load_memory", load)
+    return loaded
+
+
 def _trained(tmp_path) -> Path:
     """The checkpoint of 2 iterations of SAC in tmp_path/run."""
     outcome = testing.train_small("skrl_sac", tmp_path / "run", 2, SMALL)
@@ -84,18 +99,11 @@ def test_only_the_newest_checkpoint_keeps_the_replay_memory_and_an_older_one_res
     assert [memory_path(c.path).exists() for c in found] == [False, False, True]
     assert all(checkpoints.complete(spec, c) for c in found)
     assert "memory_1.pt" not in (run_dir / "checkpoint_1.json").read_text()
-    loaded = {}
-    original = offpolicy.load_memory
-
-    def load(memory, checkpoint):
-        original(memory, checkpoint)
-        loaded.update(index=memory.memory_index, filled=memory.filled)
-
-    monkeypatch.setattr(offpolicy, "load_memory", load)
+    loaded = memory_loads(monkeypatch)
     said = io.StringIO()
     resumed = testing.train_small("skrl_sac", tmp_path / "run", 4, SMALL, checkpoint=found[0].path,
                                   console=Console(file=said, width=300))
-    assert loaded == {"index": 0, "filled": False}
+    assert (loaded["index"], loaded["filled"]) == (0, False)
     assert ("note: model_1.pt holds no replay memory (only a run's newest checkpoint keeps it); "
             "the resumed run starts with an empty one") in said.getvalue()
     assert resumed.summary["iterations"] == 4
@@ -111,15 +119,7 @@ def test_a_checkpoint_without_its_replay_memory_is_not_resumed(tmp_path):
 
 
 def test_a_resume_with_another_env_count_keeps_the_newest_transitions(tmp_path, monkeypatch):
-    loaded = {}
-    original = offpolicy.load_memory
-
-    def load(memory, checkpoint):
-        original(memory, checkpoint)
-        loaded.update(index=memory.memory_index, filled=memory.filled,
-                      rewards=memory.tensors["rewards"].clone())
-
-    monkeypatch.setattr(offpolicy, "load_memory", load)
+    loaded = memory_loads(monkeypatch)
     checkpoint = _trained(tmp_path)  # 16 rows of 4 envs: 64 transitions
     saved = torch.load(memory_path(checkpoint), weights_only=True)["tensors"]["rewards"]
     # 6 envs: 10 whole rows of the newest 60 transitions, oldest first.
@@ -161,14 +161,7 @@ def test_the_last_good_state_is_kept_without_the_memory_and_resumes_with_an_empt
     (run_dir,) = {p.parent for p in (tmp_path / "run").glob("*/cartpole/*/run.json")}
     good = registry.get_framework("skrl_sac").checkpoints(run_dir)[-1]
     assert good.iteration == 2 and not memory_path(good.path).exists()
-    loaded = {}
-    original = offpolicy.load_memory
-
-    def load(memory, checkpoint):
-        original(memory, checkpoint)
-        loaded.update(index=memory.memory_index, filled=memory.filled)
-
-    monkeypatch.setattr(offpolicy, "load_memory", load)
+    loaded = memory_loads(monkeypatch)
     outcome = testing.train_small("skrl_sac", tmp_path / "run", 4, SMALL, checkpoint=good.path)
-    assert loaded == {"index": 0, "filled": False}
+    assert (loaded["index"], loaded["filled"]) == (0, False)
     assert outcome.summary["iterations"] == 4
