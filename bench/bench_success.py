@@ -3,11 +3,13 @@ each task should take: on a 2-core laptop (`--backend cpu`) or on one GPU (`--ba
 
   python bench/bench_success.py [--tasks ant,humanoid] [--framework rsl_rl]
                                 [--backend cpu|warp] [--seeds 0,1,2] [--success 0.9]
-                                [--json FILE]
+                                [--set KEY=VALUE ...] [--json FILE]
 
 Each run is `lab train --task T --framework F --seed S --backend B` as a user runs it (by
 this Python's `-m labcli`), in a throwaway logs dir, one after another; it is stopped (Ctrl-C,
 a checkpoint) once its training has lasted twice the task's goal, else it ends by itself.
+`--set` passes a setting on to every run (a variant of the defaults held to the same goals,
+e.g. `--set agent.symmetry_augmentation=true`).
 From its TensorBoard events: the seconds of training (from the run's first event, after
 start-up) and steps until the logged success rate first reached --success, the median
 steps/s, and the final success rate; then, per task, the median over the seeds and how many
@@ -44,9 +46,11 @@ GOALS_S = {
 START_S = 60
 
 
-def train(task: str, framework: str, backend: str, seed: int, success: float) -> dict:
+def train(task: str, framework: str, backend: str, seed: int, success: float,
+          overrides: list[str]) -> dict:
     cmd = [sys.executable, "-m", "labcli", "train", "--task", task, "--framework", framework,
-           "--seed", str(seed), "--backend", backend]
+           "--seed", str(seed), "--backend", backend,
+           *(arg for item in overrides for arg in ("--set", item))]
     limit = 2 * GOALS_S[backend].get(task, 600) + START_S
     with tempfile.TemporaryDirectory(prefix="bench_success_") as logs:
         proc = subprocess.Popen(cmd, env={**os.environ, "LAB_LOGS_DIR": logs},
@@ -60,7 +64,7 @@ def train(task: str, framework: str, backend: str, seed: int, success: float) ->
             print(f"{shlex.join(cmd)}: exit {proc.returncode}\n{err[-3000:]}", flush=True)
             return {"task": task, "seed": seed, "exit": proc.returncode}
         (run_dir,) = Path(logs, framework, task).iterdir()
-        row = {"task": task, "framework": framework, "seed": seed,
+        row = {"task": task, "framework": framework, "seed": seed, "set": overrides,
                **figures(run_dir, success)}
     print(json.dumps(row), flush=True)
     return row
@@ -124,11 +128,13 @@ def main() -> None:
     p.add_argument("--backend", choices=sorted(GOALS_S), default="cpu")
     p.add_argument("--seeds", default="0,1,2")
     p.add_argument("--success", type=float, default=0.9)
+    p.add_argument("--set", action="append", default=[], dest="overrides", metavar="KEY=VALUE",
+                   help="a setting for every run, as lab train's --set (repeatable)")
     p.add_argument("--json", type=Path, help="write the rows here")
     a = p.parse_args()
     about = machine()
     print(about, flush=True)
-    rows = [train(task, a.framework, a.backend, int(seed), a.success)
+    rows = [train(task, a.framework, a.backend, int(seed), a.success, a.overrides)
             for task in a.tasks.split(",") for seed in a.seeds.split(",")]
     report(rows, a.success, GOALS_S[a.backend])
     conclude(rows, {"machine": about}, a.json)
