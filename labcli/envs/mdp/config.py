@@ -149,9 +149,9 @@ class ObsTerm(RangeChecked):
     unit: ClassVar[str] = ""
     # How the term's columns change in the robot's left-right mirror image (`symmetry.py`):
     # "even" (they do not), "polar" (a vector in the base's frame: y flips), "axial" (an
-    # angular one: x and z flip), "joints" (by joint, as the robot description mirrors them),
-    # "actions" (by actuator, likewise), "scan" (a grid of points: y flips), "command" (the
-    # command's own); None: not known, and symmetric training refuses the term.
+    # angular one: x and z flip), "joints" (one column per actuated joint, or action, as the
+    # robot description mirrors the joints), "scan" (a grid of points: y flips), "command"
+    # (the command's own); None: not known, and symmetric training refuses the term.
     mirror: ClassVar[str | None] = None
     scale: float = 1.0
     clip: Range | None = None
@@ -311,7 +311,7 @@ class LastAction(ObsTerm):
     """The action of the last step, as the policy sent it (before scaling)."""
 
     impl: ClassVar[str] = "labcli.envs.mdp.observations:last_action"
-    mirror: ClassVar[str | None] = "actions"
+    mirror: ClassVar[str | None] = "joints"
     unit: ClassVar[str] = "the policy's last action"
 
 

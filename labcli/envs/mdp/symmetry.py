@@ -37,10 +37,10 @@ class Mirror:
     action_sign: torch.Tensor
 
     def observations(self, obs: torch.Tensor) -> torch.Tensor:
-        return obs.index_select(-1, self.obs_index) * self.obs_sign.to(obs.dtype)
+        return obs.index_select(-1, self.obs_index) * self.obs_sign
 
     def actions(self, actions: torch.Tensor) -> torch.Tensor:
-        return actions.index_select(-1, self.action_index) * self.action_sign.to(actions.dtype)
+        return actions.index_select(-1, self.action_index) * self.action_sign
 
 
 def mirror_of(task: RobotTask) -> Mirror:
@@ -66,20 +66,20 @@ def mirror_of(task: RobotTask) -> Mirror:
                            "fix env.robot.mirror: each actuated joint's image is actuated too")
         index.append(joints.index(image))
         sign.append(flips)
-    actions = (index, sign)
     obs_index: list[int] = []
     obs_sign: list[float] = []
     for built, names in zip(task._obs, task._obs_names, strict=True):
-        local, signs = _term_map(task, built, names, actions)
+        local, signs = _term_map(built, names, (index, sign))
         for _ in range(built.cfg.frames):  # each frame of the term, oldest first
             obs_index += [len(obs_index) + i for i in local]
             obs_sign += signs
     assert len(obs_index) == len(task.observation_names)
-    device, dtype = task.ones.device, task.ones.dtype
-    return Mirror(torch.tensor(obs_index, device=device), torch.tensor(obs_sign, dtype=dtype,
-                                                                       device=device),
-                  torch.tensor(index, device=device), torch.tensor(sign, dtype=dtype,
-                                                                   device=device))
+    # The signs in the learner's float32, the observations' and actions' own dtype.
+    device = task.ones.device
+    return Mirror(torch.tensor(obs_index, device=device),
+                  torch.tensor(obs_sign, dtype=torch.float32, device=device),
+                  torch.tensor(index, device=device),
+                  torch.tensor(sign, dtype=torch.float32, device=device))
 
 
 def mirror_of_env(env: Any) -> Mirror:
@@ -93,9 +93,10 @@ def mirror_of_env(env: Any) -> Mirror:
     return mirror_of(task)
 
 
-def _term_map(task: RobotTask, built: Built, names: list[str],
-              actions: tuple[list[int], list[float]]) -> tuple[list[int], list[float]]:
-    """Where each of a term's columns comes from in the mirror image, and its sign there."""
+def _term_map(built: Built, names: list[str],
+              joints: tuple[list[int], list[float]]) -> tuple[list[int], list[float]]:
+    """Where each of a term's columns comes from in the mirror image, and its sign there
+    (`joints`: that map over the actuated joints, which are the actions' too)."""
     kind = type(built.cfg).mirror
     width = len(names)
     identity = list(range(width))
@@ -103,8 +104,8 @@ def _term_map(task: RobotTask, built: Built, names: list[str],
         return identity, [1.0] * width
     if kind in ("polar", "axial") and width == 3:
         return identity, list(POLAR if kind == "polar" else AXIAL)
-    if kind in ("joints", "actions") and width == len(actions[0]):
-        return actions
+    if kind == "joints" and width == len(joints[0]):
+        return joints
     if kind == "scan":
         points = {_point(name): i for i, name in enumerate(names)}
         images = [points.get((x, 0.0 - y)) for x, y in points]
@@ -125,4 +126,3 @@ def _point(name: str) -> tuple[float, float]:
     named, with -0 as 0."""
     x, y = (round(float(v), 2) + 0.0 for v in name.split(".", 1)[1].split(","))
     return x, y
-
