@@ -1,7 +1,8 @@
 """lab's RSL-RL update (lab_rsl_rl.ppo.LabPPO) against the library's own PPO on the same
 rollouts: on a GPU, where it replays one CUDA graph, the same parameters, learning rate and
-losses within float tolerance over several updates and across a save and load; on the CPU the
-same with the library's update and a fused Adam."""
+losses within float tolerance over several updates (symmetric augmentation and the mirror loss
+included) and across a save and load; on the CPU the same with the library's update and a fused
+Adam."""
 
 from __future__ import annotations
 
@@ -14,6 +15,8 @@ from rsl_rl.algorithms import PPO
 from rsl_rl.models import MLPModel
 from rsl_rl.storage import RolloutStorage
 from tensordict import TensorDict
+
+from labcli.envs.mdp.symmetry import Mirror
 
 ENVS, STEPS, OBS, ACTIONS = 256, 8, 6, 2
 DEVICES = ["cpu", pytest.param("cuda", marks=[pytest.mark.gpu, pytest.mark.skipif(
@@ -39,6 +42,25 @@ def algorithms(device: str, **kwargs) -> tuple[PPO, LabPPO]:
     return tuple(cls(copy.deepcopy(actor), copy.deepcopy(critic),
                      RolloutStorage("rl", ENVS, STEPS, obs, [ACTIONS], device), **settings)
                  for cls in (PPO, LabPPO))
+
+
+def symmetry(device: str, augmentation: bool, mirror_loss_coef: float) -> dict:
+    """RSL-RL's symmetry_cfg with a mirror image of the test's observations and actions (two
+    columns swapped, signs flipped), as lab's runner builds it from a task's `Mirror`."""
+    mirror = Mirror(*(torch.tensor(v, device=device) for v in (
+        [1, 0, 2, 3, 4, 5], [1.0, 1.0, -1.0, 1.0, -1.0, 1.0], [1, 0], [-1.0, -1.0])))
+
+    def augment(env, obs, actions):
+        if obs is not None:
+            obs = torch.cat([obs, TensorDict({k: mirror.observations(v) for k, v in obs.items()},
+                                             batch_size=obs.batch_size)])
+        if actions is not None:
+            actions = torch.cat([actions, mirror.actions(actions)])
+        return obs, actions
+
+    return {"env": None, "data_augmentation_func": augment,
+            "use_data_augmentation": augmentation, "use_mirror_loss": mirror_loss_coef > 0,
+            "mirror_loss_coeff": mirror_loss_coef}
 
 
 def rollout_and_update(alg: PPO, iteration: int) -> dict[str, float]:
@@ -74,6 +96,18 @@ def assert_same(eager: PPO, ours: LabPPO, exact: bool) -> None:
     {"schedule": "fixed"},
 ])
 def test_lab_ppo_updates_as_rsl_rl_does(device, kwargs):
+    assert_updates_alike(device, kwargs)
+
+
+@pytest.mark.parametrize("device", DEVICES)
+@pytest.mark.parametrize(("augmentation", "mirror_loss_coef"), [(True, 0.0), (False, 0.5),
+                                                                 (True, 0.5)])
+def test_lab_ppo_learns_symmetry_as_rsl_rl_does(device, augmentation, mirror_loss_coef):
+    assert_updates_alike(device, {"symmetry_cfg": symmetry(device, augmentation,
+                                                           mirror_loss_coef)})
+
+
+def assert_updates_alike(device: str, kwargs: dict) -> None:
     eager, ours = algorithms(device, **kwargs)
     assert ours.graphed == (device == "cuda")
     assert ours.optimizer.param_groups[0]["fused"]
@@ -81,6 +115,7 @@ def test_lab_ppo_updates_as_rsl_rl_does(device, kwargs):
     for iteration in range(4):
         expected = rollout_and_update(eager, iteration)
         got = rollout_and_update(ours, iteration)
+        assert got.keys() == expected.keys()
         assert got == pytest.approx(expected, rel=1e-4, abs=1e-6)
         assert_same(eager, ours, exact=False)
         learning_rates.add(eager.learning_rate)

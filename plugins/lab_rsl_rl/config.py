@@ -48,7 +48,7 @@ class RslRlPpoConfig(AgentConfig):
     cuda_graph: bool = Field(True, description="on a GPU, replay each update's mini-batch "
                              "steps as one CUDA graph (false: RSL-RL's own update)")
     # RSL-RL's symmetry extension, with the mirror image the task's robot description declares
-    # (labcli.envs.mdp.symmetry). Either one makes the update RSL-RL's own, not a CUDA graph.
+    # (labcli.envs.mdp.symmetry); on a GPU inside the update's CUDA graph too.
     symmetry_augmentation: bool = Field(
         False, description="learn from each mini-batch and its left-right mirror image")
     mirror_loss_coef: float = Field(

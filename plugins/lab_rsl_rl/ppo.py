@@ -4,9 +4,9 @@ All mini-batch steps of an update (forward, losses, backward, gradient clipping,
 adaptive learning rate) run without host syncs and are replayed as one graph
 (`labcli.plugins.update_graph`); on several GPUs the gradients and the KL are averaged over
 the ranks inside it. The numbers are RSL-RL's (GPU tests compare updates with the library's own,
-on one GPU and on two, tests/test_rsl_rl_graph.py); on the CPU, or with what the graph leaves
-out (recurrent models, RND, symmetry, mixed precision), the update is the library's, with its
-Adam fused.
+on one GPU and on two, tests/test_rsl_rl_graph.py), symmetric data augmentation and the mirror
+loss included; on the CPU, or with what the graph leaves out (recurrent models, RND, mixed
+precision), the update is the library's, with its Adam fused.
 """
 
 from __future__ import annotations
@@ -37,14 +37,14 @@ class LabPPO(PPO):
         super().__init__(*args, **kwargs)
         self.graphed = (cuda_graph and torch.device(self.device).type == "cuda"
                         and isinstance(self.optimizer, torch.optim.Adam)
-                        and not (self.rnd or self.symmetry
-                                 or self.use_mixed_precision or self.actor.is_recurrent
+                        and not (self.rnd or self.use_mixed_precision or self.actor.is_recurrent
                                  or self.critic.is_recurrent))
         self._batch: dict[str, Any] = {}
         self.fused = isinstance(self.optimizer, torch.optim.Adam)
         if self.graphed:
             self._lr = torch.zeros((), device=self.device)
-            self._sums = torch.zeros(3, device=self.device)  # value, surrogate, entropy
+            # value, surrogate, entropy and, with symmetry, the mirror loss
+            self._sums = torch.zeros(4 if self.symmetry else 3, device=self.device)
             self._parameters = [*self.actor.parameters(), *self.critic.parameters()]
             self._graph = UpdateGraph(self._steps, self.optimizer, [self.actor, self.critic],
                                       [self._lr])
@@ -82,15 +82,15 @@ class LabPPO(PPO):
             return super().update()
         self._load_batch()
         self._graph.replay()
-        lr, value, surrogate, entropy = torch.cat([self._lr[None], self._sums]).tolist()
+        lr, *sums = torch.cat([self._lr[None], self._sums]).tolist()
         self.learning_rate = lr
         obs = self.storage.observations.flatten(0, 1)
         self.actor.update_normalization(obs)
         self.critic.update_normalization(obs)
         self.storage.clear()
         updates = self.num_learning_epochs * self.num_mini_batches
-        return {"value": value / updates, "surrogate": surrogate / updates,
-                "entropy": entropy / updates}
+        names = ("value", "surrogate", "entropy", "symmetry")
+        return {name: total / updates for name, total in zip(names, sums, strict=False)}
 
     def _load_batch(self) -> None:
         """The rollout and this update's shuffle into the graph's fixed buffers: the same
@@ -124,17 +124,27 @@ class LabPPO(PPO):
         obs = TensorDict({k.removeprefix("obs/"): v[idx] for k, v in b.items()
                           if k.startswith("obs/")}, batch_size=[idx.shape[0]])
         old_params = tuple(v[idx] for k, v in b.items() if k.startswith("old_param/"))
+        actions, old_log_prob = b["actions"][idx], b["old_log_prob"][idx]
         advantages, returns, old_values = b["advantages"][idx], b["returns"][idx], b["values"][idx]
         if self.normalize_advantage_per_mini_batch:
             advantages = (advantages - advantages.mean()) / (advantages.std() + 1e-8)
+        size = idx.shape[0]
+        augmented = self.symmetry is not None and self.symmetry.use_data_augmentation
+        if augmented:  # the mirror images appended, as RSL-RL's Symmetry.augment_batch does
+            obs, actions = self._mirrored(obs, actions)
+            copies = obs.batch_size[0] // size
+            old_log_prob, advantages, returns, old_values = (
+                t.repeat(copies, 1) for t in (old_log_prob, advantages, returns, old_values))
 
         # The actor's stochastic forward without its sample, which the update never reads
         # (and whose random draw a graph would have to own).
-        self.actor.distribution.update(self.actor.mlp(self.actor.get_latent(obs)))
-        log_prob = self.actor.get_output_log_prob(b["actions"][idx])
+        output = self.actor.mlp(self.actor.get_latent(obs))
+        self.actor.distribution.update(output)
+        log_prob = self.actor.get_output_log_prob(actions)
         values = self.critic(obs)
-        params = self.actor.output_distribution_params
-        entropy = self.actor.output_entropy
+        # The KL and the entropy of the rollout's own samples only, as RSL-RL takes them.
+        params = tuple(p[:size] for p in self.actor.output_distribution_params)
+        entropy = self.actor.output_entropy[:size]
 
         if self.desired_kl is not None and self.schedule == "adaptive":
             with torch.no_grad():
@@ -147,7 +157,7 @@ class LabPPO(PPO):
                 lr.copy_(torch.where(kl > self.desired_kl * 2.0, lowered, torch.where(
                     (kl < self.desired_kl / 2.0) & (kl > 0.0), raised, lr)))
 
-        ratio = torch.exp(log_prob - torch.squeeze(b["old_log_prob"][idx]))
+        ratio = torch.exp(log_prob - torch.squeeze(old_log_prob))
         advantages = torch.squeeze(advantages)
         surrogate_loss = torch.max(-advantages * ratio, -advantages * torch.clamp(
             ratio, 1.0 - self.clip_param, 1.0 + self.clip_param)).mean()
@@ -158,6 +168,12 @@ class LabPPO(PPO):
             value_loss = (returns - values).pow(2).mean()
         loss = (surrogate_loss + self.value_loss_coef * value_loss
                 - self.entropy_coef * entropy.mean())
+        losses = [value_loss, surrogate_loss, entropy.mean()]
+        if self.symmetry is not None:
+            mirror_loss = self._mirror_loss(obs, output, size, augmented)
+            if self.symmetry.use_mirror_loss:
+                loss = loss + self.symmetry.mirror_loss_coeff * mirror_loss
+            losses.append(mirror_loss.detach())
 
         self.optimizer.zero_grad(set_to_none=False)
         loss.backward()
@@ -167,4 +183,25 @@ class LabPPO(PPO):
         nn.utils.clip_grad_norm_(self.critic.parameters(), self.max_grad_norm)
         self.optimizer.step()
         with torch.no_grad():
-            self._sums.add_(torch.stack([value_loss, surrogate_loss, entropy.mean()]))
+            self._sums.add_(torch.stack(losses))
+
+    def _mirrored(self, obs: TensorDict | None, actions: torch.Tensor | None
+                  ) -> tuple[TensorDict | None, torch.Tensor | None]:
+        """The batch and its mirror images, from the run's symmetry function."""
+        return self.symmetry.data_augmentation_func(env=self.symmetry.env, obs=obs,
+                                                    actions=actions)
+
+    def _mirror_loss(self, obs: TensorDict, output: torch.Tensor, size: int,
+                     augmented: bool) -> torch.Tensor:
+        """RSL-RL's mirror loss: the actor's mean on the mirrored observations against the
+        mirror image of its mean on the originals (held fixed). An augmented batch already
+        holds both means; otherwise the mirrored observations take one more forward."""
+        mean = self.actor.distribution.deterministic_output(output)
+        if augmented:
+            mean_of_mirrored = mean[size:]
+        else:
+            mirrored, _ = self._mirrored(obs, None)
+            mean_of_mirrored = self.actor.distribution.deterministic_output(
+                self.actor.mlp(self.actor.get_latent(mirrored[size:])))
+        _, mirrored_mean = self._mirrored(None, mean[:size].detach())
+        return nn.functional.mse_loss(mean_of_mirrored, mirrored_mean[size:])
