@@ -18,6 +18,9 @@ import torch
 
 from labcli.errors import LabError
 
+# How a run turns symmetric training off (RSL-RL's keys; g1-flat's GPU default turns it on).
+OFF = "--set agent.symmetry_augmentation=false --set agent.mirror_loss_coef=0"
+
 if TYPE_CHECKING:
     from labcli.envs.mdp.task import Built, RobotTask
 
@@ -50,12 +53,12 @@ def mirror_of(task: RobotTask) -> Mirror:
     if robot is None:
         raise LabError("symmetric training needs the robot's mirror image, and this task has no "
                        "robot description (env.robot) to declare one",
-                       "train it without symmetry")
+                       f"train it without symmetry ({OFF})")
     if not robot.mirror:
         raise LabError("symmetric training needs the robot's mirror image, and this task's robot "
                        "description declares none",
                        "set env.robot.mirror and env.robot.mirror_negated (docs/plugins.md), or "
-                       "train without symmetry")
+                       f"train without symmetry ({OFF})")
     joints = task.robot.joint_names
     index, sign = [], []
     for joint in joints:
@@ -89,7 +92,7 @@ def mirror_of_env(env: Any) -> Mirror:
     task = getattr(env.unwrapped, "task", None)
     if not isinstance(task, RobotTask):
         raise LabError("symmetric training needs a robot task whose robot description "
-                       "declares its mirror image", "train this task without symmetry")
+                       "declares its mirror image", f"train this task without symmetry ({OFF})")
     return mirror_of(task)
 
 
@@ -118,7 +121,7 @@ def _term_map(built: Built, names: list[str],
     raise LabError(f"observation term '{built.name}' has no mirror image that lab knows "
                    f"({type(built.cfg).__name__})",
                    f"leave it out (--set env.observations.{built.name}=null) or train without "
-                   "symmetry")
+                   f"symmetry ({OFF})")
 
 
 def _point(name: str) -> tuple[float, float]:
