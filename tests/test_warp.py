@@ -13,6 +13,7 @@ import sys
 import mujoco
 import pytest
 import torch
+from conftest import needs_menagerie
 from lab_cartpole.cartpole import Cartpole
 from lab_cartpole.config import CartpoleConfig
 from lab_cartpole.plugin import MODEL
@@ -22,6 +23,7 @@ from labcli.envs.env import LabVecEnv
 from labcli.envs.sim import default_backend, make_sim
 from labcli.envs.spec import TaskSpec
 from labcli.errors import LabError
+from labcli.gym import make_env
 
 HAVE_WARP = all(importlib.util.find_spec(m) for m in ("warp", "mujoco_warp"))
 on_gpu = pytest.mark.skipif(not (HAVE_WARP and torch.cuda.is_available()),
@@ -219,6 +221,29 @@ def test_graphed_step_equals_the_eager_step(mode):
     for key in got:
         assert got[key] == pytest.approx(want[key], rel=1e-4, abs=1e-5), key
     for env in (graphed, eager):
+        env.close()
+
+
+@pytest.mark.gpu
+@on_gpu
+@needs_menagerie("unitree_go1")
+def test_a_value_terms_share_read_between_replayed_steps_is_the_current_one():
+    """Terms share values computed once per state (`robot.per_state`). A read between steps
+    caches one, and a replayed step runs none of the task's Python: the next read must see the
+    state the graph left, not the one cached (panda-lift's grasp, read after each step, stayed
+    at its first value: loose)."""
+    env = make_env("go1-flat", num_envs=4, seed=0, backend="warp", device="cuda")
+    try:
+        env.reset()
+        robot = env.task.robot
+        assert env._graphed is not None
+        generator = torch.Generator(device="cuda").manual_seed(0)
+        for _ in range(8):  # three eager warm-up steps, the capture, then replays
+            env.step(torch.rand(4, 12, generator=generator, device="cuda") * 2 - 1)
+            now = (2.0 * robot.joint_pos - robot.joint_upper - robot.joint_lower) / (
+                robot.joint_upper - robot.joint_lower)
+            torch.testing.assert_close(robot.joint_pos_normalized(), now)
+    finally:
         env.close()
 
 

@@ -211,7 +211,9 @@ class LabVecEnv(gym.vector.VectorEnv):
             raise closed_error("step", self.task_spec.name)
         actions = checked_actions(actions, self.action_space.shape, self.device)
         if self._graphed is not None:
-            return self._graphed(actions)
+            outputs = self._graphed(actions)
+            self.task.replayed()
+            return outputs
         if self._compiled is not None:
             out = self.new_outputs()
             if self._compiled[1].ready:

@@ -142,6 +142,12 @@ class Task:
     def state_restored(self) -> None:
         """Called after `state()`'s tensors were written from a saved state."""
 
+    def replayed(self) -> None:
+        """Called after an env step replayed as a CUDA graph, in which none of the task's
+        Python ran: drop what `update()` and the terms keep in Python for the state they last
+        saw (a cache keyed by state), so that code reading the task between steps computes
+        it from the state the graph left. The default does nothing."""
+
     def reset(self, mask: torch.Tensor, rng: EnvRandom) -> None:
         """Randomize the state of the envs in `mask`; the sim already put them at the defaults."""
 

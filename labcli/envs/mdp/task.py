@@ -304,6 +304,11 @@ class RobotTask(Task):
                 **{f"{owner}/{name}": getattr(made, name) for owner, made in self._carriers
                    for name in made.carried}}
 
+    def replayed(self) -> None:
+        # Values shared per state (robot.per_state) that an eager read cached after the last
+        # Python step would be read again as they were: a cube grasped since read as loose.
+        self.robot.forget_derived()
+
     def state_restored(self) -> None:
         # The saved state has its start-up events' draws already: they must not run again.
         self._startups.clear()
