@@ -127,7 +127,7 @@ def _with_network(defaults: dict, network: list[int]) -> dict:
 
 def _g1_defaults(iterations: int = G1_ITERATIONS, symmetric_on_gpu: bool = False) -> dict:
     defaults = _velocity_defaults(num_envs=256, max_iterations=iterations)
-    if symmetric_on_gpu:  # measured on the GPU only: on the CPU the learner bounds the pace
+    if symmetric_on_gpu:  # measured on the GPU only (the G1 does not walk on 2 cores yet)
         defaults["rsl_rl"]["warp"]["agent"]["symmetry_augmentation"] = True
     # rl_games: the same PPO in its terms (a mini-batch a quarter of the rollout: 6 of 24 steps).
     defaults["rl_games"] = {"env": {"num_envs": 256}, "agent": {
