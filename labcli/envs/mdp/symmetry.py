@@ -18,7 +18,7 @@ import torch
 
 from labcli.errors import LabError
 
-# How a run turns symmetric training off (RSL-RL's keys; g1-flat's GPU default turns it on).
+# How a run turns symmetric training off (RSL-RL's keys), a config or --set having turned it on.
 OFF = "--set agent.symmetry_augmentation=false --set agent.mirror_loss_coef=0"
 
 if TYPE_CHECKING:
