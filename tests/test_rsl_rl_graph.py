@@ -10,6 +10,7 @@ import copy
 
 import pytest
 import torch
+from lab_rsl_rl.framework import mirror_augmentation
 from lab_rsl_rl.ppo import LabPPO
 from rsl_rl.algorithms import PPO
 from rsl_rl.models import MLPModel
@@ -49,16 +50,7 @@ def symmetry(device: str, augmentation: bool, mirror_loss_coef: float) -> dict:
     columns swapped, signs flipped), as lab's runner builds it from a task's `Mirror`."""
     mirror = Mirror(*(torch.tensor(v, device=device) for v in (
         [1, 0, 2, 3, 4, 5], [1.0, 1.0, -1.0, 1.0, -1.0, 1.0], [1, 0], [-1.0, -1.0])))
-
-    def augment(env, obs, actions):
-        if obs is not None:
-            obs = torch.cat([obs, TensorDict({k: mirror.observations(v) for k, v in obs.items()},
-                                             batch_size=obs.batch_size)])
-        if actions is not None:
-            actions = torch.cat([actions, mirror.actions(actions)])
-        return obs, actions
-
-    return {"env": None, "data_augmentation_func": augment,
+    return {"env": None, "data_augmentation_func": mirror_augmentation(mirror),
             "use_data_augmentation": augmentation, "use_mirror_loss": mirror_loss_coef > 0,
             "mirror_loss_coeff": mirror_loss_coef}
 

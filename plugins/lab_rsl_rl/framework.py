@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import contextlib
 import io
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -15,7 +16,7 @@ from torch import nn
 
 from lab_rsl_rl.adapter import OBS_GROUP, RslRlVecEnv
 from lab_rsl_rl.config import RslRlPpoConfig
-from labcli.envs.mdp.symmetry import mirror_of_env
+from labcli.envs.mdp.symmetry import Mirror, mirror_of_env
 from labcli.errors import LabError, first_line
 from labcli.plugins.framework import Framework, StopTraining, TrainContext
 from labcli.plugins.policy import (
@@ -74,10 +75,19 @@ def symmetry_config(cfg: RslRlPpoConfig, env: RslRlVecEnv) -> dict[str, Any] | N
     config asks for no symmetry."""
     if not cfg.symmetric:
         return None
-    mirror = mirror_of_env(env.env)
+    return {"data_augmentation_func": mirror_augmentation(mirror_of_env(env.env)),
+            "use_data_augmentation": cfg.symmetry_augmentation,
+            "use_mirror_loss": cfg.mirror_loss_coef > 0, "mirror_loss_coeff": cfg.mirror_loss_coef}
 
-    def augment(env: Any, obs: TensorDict | None, actions: torch.Tensor | None
-                ) -> tuple[TensorDict | None, torch.Tensor | None]:
+
+Augmented = tuple[TensorDict | None, torch.Tensor | None]
+
+
+def mirror_augmentation(mirror: Mirror) -> Callable[..., Augmented]:
+    """RSL-RL's data augmentation function for `mirror`: each observation group and action
+    batch with its mirror image appended."""
+
+    def augment(env: Any, obs: TensorDict | None, actions: torch.Tensor | None) -> Augmented:
         if obs is not None:
             mirrored = TensorDict({k: mirror.observations(v) for k, v in obs.items()},
                                   batch_size=obs.batch_size, device=obs.device)
@@ -86,8 +96,7 @@ def symmetry_config(cfg: RslRlPpoConfig, env: RslRlVecEnv) -> dict[str, Any] | N
             actions = torch.cat([actions, mirror.actions(actions)], dim=0)
         return obs, actions
 
-    return {"data_augmentation_func": augment, "use_data_augmentation": cfg.symmetry_augmentation,
-            "use_mirror_loss": cfg.mirror_loss_coef > 0, "mirror_loss_coeff": cfg.mirror_loss_coef}
+    return augment
 
 
 class _LabLogger:
