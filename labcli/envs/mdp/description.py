@@ -109,6 +109,44 @@ class Actuators(BaseModel):
         return 0.25 * self.effort_limit / kp
 
 
+GeomType = Literal["plane", "hfield", "sphere", "capsule", "ellipsoid", "cylinder", "box", "mesh",
+                   "sdf"]
+
+
+class Collisions(BaseModel):
+    """How the robot's collision geoms of some bodies touch (mjlab's CollisionCfg): geoms are
+    matched by their body (Menagerie's geoms often have no name) and optionally their type."""
+
+    model_config = ConfigDict(extra="forbid", validate_assignment=True, allow_inf_nan=False)
+
+    bodies: Patterns = Field(min_length=1, description="bodies whose geoms these are")
+    types: list[GeomType] | None = Field(None, description="only geoms of these types; None: "
+                                         "any")
+    collide: bool = Field(True, description="false: they touch nothing (contype and "
+                          "conaffinity 0)")
+    condim: Literal[1, 3, 4, 6] | None = Field(None, description="contact dimensions: 3 "
+                                               "sliding friction, 4 torsional too, 6 rolling "
+                                               "too; None: the model's")
+    friction: tuple[float, float, float] | None = Field(None, description="sliding, torsional "
+                                                        "and rolling; None: the model's")
+    solref: tuple[float, float] | None = Field(None, description="contact stiffness: time "
+                                               "constant (s) and damping ratio")
+    priority: int | None = Field(None, description="in a contact, the geom of higher "
+                                 "priority gives its condim and friction")
+
+
+class Site(BaseModel):
+    """A site the description adds to one of the robot's bodies (a point terms read, such as
+    the middle of a gripper's pads), in the body's frame."""
+
+    model_config = ConfigDict(extra="forbid", validate_assignment=True, allow_inf_nan=False)
+
+    body: str = Field(min_length=1)
+    pos: tuple[float, float, float] = Field(description="m, in the body's frame")
+    quat: tuple[float, float, float, float] = Field((1.0, 0.0, 0.0, 0.0), description="w, x, "
+                                                    "y, z, in the body's frame")
+
+
 class RobotDescription(BaseModel):
     """What a task needs to know of its robot beyond the MJCF, in one place a user can read and
     change. `base`: how the robot's root moves: `floating`, a free joint (legged robots);
@@ -127,6 +165,12 @@ class RobotDescription(BaseModel):
                                   "with the ground are the feet's")
     contact_pairs: Patterns | None = Field(None, description="the model's explicit contact "
                                            "pairs to keep, by name; None: all of them")
+    sites: dict[str, Site] = Field(default_factory=dict, description="sites to add, by name")
+    collisions: list[Collisions] | None = Field(None, description="the collision set: each of "
+                                                "the robot's collision geoms set by the first "
+                                                "entry that matches it, those none matches "
+                                                "touching nothing (only a gripper's, say, for "
+                                                "speed); None: the model's own")
     gravity_compensation: bool = Field(False, description="the robot's bodies weigh nothing "
                                        "on its joints (MuJoCo's gravcomp), as a Franka's own "
                                        "controller cancels gravity; what it holds still weighs")

@@ -9,7 +9,7 @@ import re
 
 import mujoco
 
-from labcli.envs.mdp.description import RobotDescription
+from labcli.envs.mdp.description import Collisions, RobotDescription
 from labcli.errors import LabError
 from labcli.mjtree import robot_free_joints
 
@@ -67,21 +67,75 @@ def apply(spec: mujoco.MjSpec, robot: RobotDescription) -> None:
         for pair in list(spec.pairs):
             if not any(re.fullmatch(p, pair.name) for p in robot.contact_pairs):
                 spec.delete(pair)
+    for name, site in robot.sites.items():
+        body = spec.body(site.body)
+        if body is None:
+            raise LabError(f"env.robot.sites' '{name}' is on body '{site.body}', which model "
+                           f"'{spec.modelname}' does not have",
+                           f"name one of {', '.join(b.name for b in spec.bodies if b.name)}")
+        body.add_site(name=name, pos=list(site.pos), quat=list(site.quat))
+    if robot.collisions is not None:
+        _set_collisions(spec, model, robot.collisions)
     if robot.gravity_compensation:
         _compensate_gravity(spec, model)
     if robot.home is not None:
         _write_home(spec, model, robot.home)
 
 
-def _compensate_gravity(spec: mujoco.MjSpec, model: mujoco.MjModel) -> None:
-    """Every body of the robot (the tree from the world's child that holds its actuated
-    joints) weightless on its joints."""
+def _robot_bodies(model: mujoco.MjModel) -> list[int]:
+    """The robot's bodies: the trees from the world's children that hold actuated joints (not
+    the floor, nor an object it handles)."""
     roots = {int(model.body_rootid[model.jnt_bodyid[model.actuator_trnid[a, 0]]])
              for a in range(model.nu)}
+    return [b for b in range(1, model.nbody) if int(model.body_rootid[b]) in roots]
+
+
+def _compensate_gravity(spec: mujoco.MjSpec, model: mujoco.MjModel) -> None:
+    """Every body of the robot weightless on its joints."""
     bodies = spec.bodies  # the compiled model's order: the world first, then depth first
-    for body in range(1, model.nbody):
-        if int(model.body_rootid[body]) in roots:
-            bodies[body].gravcomp = 1.0
+    for body in _robot_bodies(model):
+        bodies[body].gravcomp = 1.0
+
+
+def _set_collisions(spec: mujoco.MjSpec, model: mujoco.MjModel,
+                    entries: list[Collisions]) -> None:
+    """Each collision geom of the robot set by the first entry matching its body and type; a
+    geom no entry matches stops colliding. Visual geoms (no contype, no conaffinity) stay."""
+    matched = [False] * len(entries)
+    robot = set(_robot_bodies(model))
+    geoms = spec.geoms  # the compiled model's order, as bodies
+    for g in range(model.ngeom):
+        body = int(model.geom_bodyid[g])
+        if body not in robot or not (model.geom_contype[g]
+                                                    or model.geom_conaffinity[g]):
+            continue
+        body_name = model.body(body).name
+        kind = mujoco.mjtGeom(int(model.geom_type[g])).name.removeprefix("mjGEOM_").lower()
+        entry = next((i for i, e in enumerate(entries)
+                      if any(re.fullmatch(p, body_name) for p in e.bodies)
+                      and (e.types is None or kind in e.types)), None)
+        geom = geoms[g]
+        if entry is None or not entries[entry].collide:
+            geom.contype = geom.conaffinity = 0
+        else:
+            e = entries[entry]
+            geom.contype = geom.conaffinity = 1
+            if e.condim is not None:
+                geom.condim = e.condim
+            if e.friction is not None:
+                geom.friction = list(e.friction)
+            if e.solref is not None:
+                geom.solref = list(e.solref)
+            if e.priority is not None:
+                geom.priority = e.priority
+        if entry is not None:
+            matched[entry] = True
+    for entry, used in zip(entries, matched, strict=True):
+        if not used:
+            raise LabError(f"env.robot.collisions' entry for bodies {entry.bodies}"
+                           + (f" and types {entry.types}" if entry.types else "")
+                           + " matches no collision geom of the robot",
+                           "name bodies of the robot that have collision geoms")
 
 
 HOME = "home"
