@@ -330,6 +330,25 @@ class ObjectPosition(ObjectTerm, ObsTerm):
     base_body: str = Field(min_length=1, description="the fixed base's body: the frame")
 
 
+class ObjectFromSite(ObjectTerm, ObsTerm):
+    """The object's position from the site (an end effector), in the frame of the fixed
+    base's body `base_body` (m): mjlab's `ee_to_object_distance`."""
+
+    impl: ClassVar[str] = "labcli.envs.mdp.observations:object_from_site"
+    unit: ClassVar[str] = "m, base frame"
+    site: str = Field(min_length=1, description="the end effector's site")
+    base_body: str = Field(min_length=1, description="the fixed base's body: the frame")
+
+
+class ObjectToTarget(PoseCommandRef, ObjectTerm, ObsTerm):
+    """The command's target position from the object, in the frame of the command's base
+    body (m): mjlab's `object_to_goal_distance`."""
+
+    impl: ClassVar[str] = "labcli.envs.mdp.observations:object_to_target"
+    unit: ClassVar[str] = "m, base frame"
+    command: str = "object_pose"
+
+
 class BodyWrench(ObsTerm):
     """The force and torque each named body receives from its parent through its joint, in the
     body's frame (N, N m): Isaac Lab's `body_incoming_wrench`, read from MuJoCo force and torque
@@ -480,13 +499,37 @@ class ObjectLifted(HeldObjectTerm, RewardTerm):
 
 
 class ObjectGoalDistance(PoseCommandRef, HeldObjectTerm, RewardTerm):
-    """Where the object is lifted (above `minimal_height`), 1 - tanh(its distance to the
-    command's target position / std): Isaac Lab's `object_goal_distance`."""
+    """Where the object is lifted (above `minimal_height`; None: anywhere), a kernel of its
+    distance d to the command's target position: `tanh`, 1 - tanh(d / std) (Isaac Lab's
+    `object_goal_distance`); `gaussian`, exp(-d^2 / std^2) (mjlab's `bring_object_reward`,
+    with no minimal height)."""
 
     impl: ClassVar[str] = "labcli.envs.mdp.rewards:object_goal_distance"
     command: str = "object_pose"
     std: float = Field(0.3, gt=0, description="m")
-    minimal_height: float = Field(0.04, description="m")
+    minimal_height: float | None = Field(0.04, description="m")
+    kernel: Literal["tanh", "gaussian"] = "tanh"
+
+
+class ObjectStagedReach(PoseCommandRef, ObjectTerm, RewardTerm):
+    """reach x (1 + bring), both Gaussian kernels: reach = exp(-|site - object|^2 /
+    reaching_std^2), bring = exp(-|target - object|^2 / bringing_std^2). Bringing pays only
+    near the object, so the hand learns to reach it before carrying it: mjlab's
+    `staged_position_reward`."""
+
+    impl: ClassVar[str] = "labcli.envs.mdp.rewards:staged_position_reward"
+    command: str = "object_pose"
+    site: str = Field(min_length=1, description="the end effector's site")
+    reaching_std: float = Field(0.2, gt=0, description="m")
+    bringing_std: float = Field(0.3, gt=0, description="m")
+
+
+class JointVelHinge(RewardTerm):
+    """sum over the actuated joints of (|velocity| - max_vel)^2 where it exceeds max_vel
+    ((rad/s)^2): mjlab's `joint_velocity_hinge_penalty`."""
+
+    impl: ClassVar[str] = "labcli.envs.mdp.rewards:joint_vel_hinge"
+    max_vel: float = Field(0.5, ge=0, description="rad/s (m/s for a slide joint)")
 
 
 class JointAccL2(RewardTerm):
@@ -749,9 +792,14 @@ class BadOrientation(TerminationTerm):
 
 
 class IllegalContact(Contacts, TerminationTerm):
-    """Any of the named bodies in contact (its net contact force above `threshold`, N)."""
+    """Any of the named bodies in contact (its net contact force above `threshold`, N). With
+    `against`, only its contacts with that body's geoms count (`world`: the ground), and each
+    named body's subtree's (a hand with its fingers): mjlab's `illegal_contact` on an
+    end effector's subtree against the terrain."""
 
     impl: ClassVar[str] = "labcli.envs.mdp.terminations:illegal_contact"
+    against: str | None = Field(None, min_length=1, description="a body: contacts with its "
+                                "geoms only; None: with anything")
 
 
 # events ----------------------------------------------------------------------------------------
@@ -963,6 +1011,16 @@ class RewardWeight(CurriculumTerm):
     term: str = Field(min_length=1, description="a reward term's name in env.rewards")
     weight: float
     num_steps: int = Field(ge=0, description="env steps (each a step of every env)")
+    then: list[tuple[int, float]] = Field(default_factory=list, description="later stages: "
+                                          "(num_steps, weight) pairs, each weight from its "
+                                          "step count on (mjlab's `reward_curriculum`)")
+
+    @model_validator(mode="after")
+    def _stages_in_order(self) -> RewardWeight:
+        counts = [self.num_steps] + [count for count, _ in self.then]
+        if counts != sorted(counts):
+            raise ValueError(f"the stages start at {counts} env steps: give them in order")
+        return self
 
 
 # success --------------------------------------------------------------------------------------
@@ -991,6 +1049,26 @@ class PoseReached(PoseCommandRef):
     impl: ClassVar[str] = "labcli.envs.mdp.success:pose_reached"
     position_error: float = Field(0.05, gt=0)
     orientation_error: float | None = Field(None, gt=0)
+
+
+# objects -------------------------------------------------------------------------------------
+class Box(BaseModel):
+    """A box with a free joint that the task adds to its model (a cube for an arm to lift), at
+    `pos` in the world, resting there at reset unless an event moves it. Its contacts are
+    MuJoCo's defaults, or the robot's geoms' of higher priority (a gripper's pads)."""
+
+    model_config = ConfigDict(extra="forbid", validate_assignment=True, allow_inf_nan=False)
+
+    size: tuple[float, float, float] = Field(description="half-lengths along x, y, z (m)")
+    mass: float = Field(gt=0, description="kg")
+    pos: tuple[float, float, float] = Field(description="where it starts, world frame (m)")
+    rgba: tuple[float, float, float, float] = (0.8, 0.2, 0.2, 1.0)
+
+    @model_validator(mode="after")
+    def _positive_size(self) -> Box:
+        if min(self.size) <= 0:
+            raise ValueError(f"size is {self.size}: half-lengths are positive (m)")
+        return self
 
 
 # the task ---------------------------------------------------------------------------------------
@@ -1036,6 +1114,8 @@ class RobotTaskConfig(TaskConfig):
     terrain: TerrainConfig | None = Field(None, description="a grid of terrain patches in "
                                           "place of the model's ground plane, robots starting "
                                           "on them; None: the model's own ground")
+    objects: dict[str, Box] = Field(default_factory=dict, description="free bodies the task "
+                                    "adds to the model, by body name (a cube to lift)")
     # Concrete types: a run's params/env.yaml is read back into them. A subclass declares its own
     # (e.g. `actions: JointPosition = JointPosition(scale=0.25)`).
     actions: JointEffort = JointEffort()

@@ -141,6 +141,28 @@ class object_position_in_robot_root_frame:  # noqa: N801
         return self.base.local(self.object.pos)
 
 
+class object_from_site:  # noqa: N801
+    def __init__(self, task: RobotTask, cfg: c.ObjectFromSite):
+        self.object = objects.free_body(task, cfg.object)
+        self.base = objects.fixed_frame(task, cfg.base_body)
+        self.site = sensors.columns(task, [[s.name for s in self.sensors(task.model, cfg)]])
+
+    @staticmethod
+    def sensors(model: mujoco.MjModel, cfg: c.ObjectFromSite) -> list[sensors.Sensor]:
+        return [sensors.frame("framepos", "site", cfg.site)]
+
+    def __call__(self) -> torch.Tensor:
+        return math.quat_apply_inverse(self.base.quat, self.object.pos - self.site())
+
+
+class object_to_target:  # noqa: N801
+    def __init__(self, task: RobotTask, cfg: c.ObjectToTarget):
+        self.object, self.command = objects.free_body(task, cfg.object), task.command(cfg.command)
+
+    def __call__(self) -> torch.Tensor:
+        return self.command()[:, :3] - self.command.base.local(self.object.pos)
+
+
 class height_scan:  # noqa: N801 - a term, named as Isaac Lab's
     """The base's height above the terrain (`task.terrain`) under each point of the grid, turned
     with the base's yaw, minus the offset."""

@@ -76,7 +76,7 @@ class position_command_error_tanh:  # noqa: N801
         self.command, self.inv_std = task.command(cfg.command), 1.0 / cfg.std
 
     def __call__(self) -> torch.Tensor:
-        return 1.0 - torch.tanh(self.command.position_error() * self.inv_std)
+        return _tanh_kernel(self.command.position_error(), self.inv_std)
 
 
 class orientation_command_error:  # noqa: N801
@@ -98,7 +98,7 @@ class object_ee_distance:  # noqa: N801
 
     def __call__(self) -> torch.Tensor:
         distance = torch.linalg.vector_norm(self.object.pos - self.site(), dim=1)
-        return 1.0 - torch.tanh(distance * self.inv_std)
+        return _tanh_kernel(distance, self.inv_std)
 
 
 class object_grasped:  # noqa: N801
@@ -125,24 +125,63 @@ class _Lifted:
     def sensors(model: mujoco.MjModel, cfg: c.HeldObjectTerm) -> list[sensors.Sensor]:
         return [] if cfg.held_by is None else objects.grasp_sensors(cfg.object, cfg.held_by)
 
-    def lifted(self) -> torch.Tensor:
-        lifted = self.object.height > self.cfg.minimal_height
-        return lifted if self.held is None else lifted.logical_and_(self.held())
+    def lifted(self) -> torch.Tensor | None:
+        """Where it counts, `[n]` (bool); None: everywhere."""
+        lifted = (None if self.cfg.minimal_height is None
+                  else self.object.height > self.cfg.minimal_height)
+        if self.held is None:
+            return lifted
+        return self.held() if lifted is None else lifted.logical_and_(self.held())
 
 
 class object_is_lifted(_Lifted):  # noqa: N801
     def __call__(self) -> torch.Tensor:
-        return self.lifted().to(self.object.height.dtype)
+        lifted = self.lifted()
+        assert lifted is not None  # ObjectLifted's minimal height is a number
+        return lifted.to(self.object.height.dtype)
 
 
 class object_goal_distance(_Lifted):  # noqa: N801
     def __init__(self, task: RobotTask, cfg: c.ObjectGoalDistance):
         super().__init__(task, cfg)
         self.command, self.inv_std = task.command(cfg.command), 1.0 / cfg.std
+        self.kernel = _tanh_kernel if cfg.kernel == "tanh" else _gaussian_kernel
 
     def __call__(self) -> torch.Tensor:
         distance = torch.linalg.vector_norm(self.command.target_world() - self.object.pos, dim=1)
-        return (1.0 - torch.tanh(distance * self.inv_std)).mul_(self.lifted())
+        near, lifted = self.kernel(distance, self.inv_std), self.lifted()
+        return near if lifted is None else near.mul_(lifted)
+
+
+def _tanh_kernel(distance: torch.Tensor, inv_std: float) -> torch.Tensor:
+    return 1.0 - torch.tanh(distance * inv_std)
+
+
+def _gaussian_kernel(distance: torch.Tensor, inv_std: float) -> torch.Tensor:
+    return torch.exp(-(distance * inv_std).square())
+
+
+class staged_position_reward:  # noqa: N801 - a term, named as mjlab's
+    def __init__(self, task: RobotTask, cfg: c.ObjectStagedReach):
+        self.object, self.command = objects.free_body(task, cfg.object), task.command(cfg.command)
+        self.site = sensors.columns(task, [[s.name for s in self.sensors(task.model, cfg)]])
+        self.inv_reach, self.inv_bring = 1.0 / cfg.reaching_std, 1.0 / cfg.bringing_std
+
+    @staticmethod
+    def sensors(model: mujoco.MjModel, cfg: c.ObjectStagedReach) -> list[sensors.Sensor]:
+        return [sensors.frame("framepos", "site", cfg.site)]
+
+    def __call__(self) -> torch.Tensor:
+        pos = self.object.pos
+        reach = _gaussian_kernel(torch.linalg.vector_norm(pos - self.site(), dim=1),
+                                 self.inv_reach)
+        bring = _gaussian_kernel(torch.linalg.vector_norm(self.command.target_world() - pos,
+                                                          dim=1), self.inv_bring)
+        return bring.add_(1.0).mul_(reach)
+
+
+def joint_vel_hinge(task: RobotTask, cfg: c.JointVelHinge) -> torch.Tensor:
+    return (task.robot.joint_vel.abs() - cfg.max_vel).clamp_min_(0.0).square_().sum(dim=1)
 
 
 def power_consumption(task: RobotTask, cfg: c.Energy) -> torch.Tensor:

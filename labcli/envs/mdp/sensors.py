@@ -157,19 +157,29 @@ def columns(task: RobotTask, groups: Sequence[Sequence[str]]) -> Callable[[], to
 
 class BodyContacts:
     """Whether each of the named bodies is in contact, `[n, bodies]`: the net force of its
-    contacts above `threshold` (N). Terms on the same bodies and threshold share one
+    contacts above `threshold` (N); with `against` (a body), of its subtree's contacts with
+    that body's geoms. Terms on the same bodies, threshold and other side share one
     computation per state."""
 
-    def __init__(self, task: RobotTask, patterns: Sequence[str], threshold: float):
+    def __init__(self, task: RobotTask, patterns: Sequence[str], threshold: float,
+                 against: str | None = None):
         self.bodies = body_names(task.model, patterns)
-        self.forces = columns(task, [contact_names(b) for b in self.bodies])
+        self.forces = columns(task, [[s.name] for s in self.sensors(task.model, patterns,
+                                                                    against)])
+        # A sensor against a body reports the number of contacts before their net force.
+        self.width = 3 if against is None else 4
         self.robot, self.threshold = task.robot, threshold
-        self.key = ("in_contact", tuple(self.bodies), threshold)
+        self.key = ("in_contact", tuple(self.bodies), threshold, against)
 
     @staticmethod
-    def sensors(model: mujoco.MjModel, patterns: Sequence[str]) -> list[Sensor]:
-        return [contact(body) for body in body_names(model, patterns)]
+    def sensors(model: mujoco.MjModel, patterns: Sequence[str],
+                against: str | None = None) -> list[Sensor]:
+        bodies = body_names(model, patterns)
+        if against is None:
+            return [contact(body) for body in bodies]
+        return [subtree_contact(body, against, "body") for body in bodies]
 
     def __call__(self) -> torch.Tensor:
         return self.robot.per_state(self.key, lambda: torch.linalg.vector_norm(
-            self.forces().view(-1, len(self.bodies), 3), dim=2) > self.threshold)
+            self.forces().view(-1, len(self.bodies), self.width)[:, :, -3:], dim=2)
+            > self.threshold)

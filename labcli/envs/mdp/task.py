@@ -31,7 +31,14 @@ import torch
 from labcli import refs
 from labcli.envs import models
 from labcli.envs.markers import Marker
-from labcli.envs.mdp import deployment, frames, robot_model, sensors, terrain_model
+from labcli.envs.mdp import (
+    deployment,
+    frames,
+    object_model,
+    robot_model,
+    sensors,
+    terrain_model,
+)
 from labcli.envs.mdp.config import Group, RobotTaskConfig, Term
 from labcli.envs.mdp.motors import ExplicitMotors
 from labcli.envs.mdp.robot import Robot
@@ -90,6 +97,7 @@ class RobotTask(Task):
         spec = models.load_spec(source)
         if not visual:
             models.drop_visual_meshes(spec)
+        object_model.apply(spec, cfg.objects)
         if cfg.robot is not None:
             robot_model.apply(spec, cfg.robot)
         if cfg.terrain is not None:

@@ -29,11 +29,11 @@ def bad_orientation(task: RobotTask, cfg: c.BadOrientation) -> torch.Tensor:
 
 class illegal_contact:  # noqa: N801 - a term, named as Isaac Lab's
     def __init__(self, task: RobotTask, cfg: c.IllegalContact):
-        self.contacts = sensors.BodyContacts(task, cfg.bodies, cfg.threshold)
+        self.contacts = sensors.BodyContacts(task, cfg.bodies, cfg.threshold, cfg.against)
 
     @staticmethod
     def sensors(model: mujoco.MjModel, cfg: c.IllegalContact) -> list[sensors.Sensor]:
-        return sensors.BodyContacts.sensors(model, cfg.bodies)
+        return sensors.BodyContacts.sensors(model, cfg.bodies, cfg.against)
 
     def __call__(self) -> torch.Tensor:
         return self.contacts().any(dim=1)
