@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 import math
+from typing import Literal
 
 from pydantic import Field
 
+from lab_manipulation import yam
 from lab_manipulation.panda import FINGERS, PICKING
 from lab_manipulation.panda import ROBOT as PANDA
 from labcli.envs.mdp import config as c
@@ -158,3 +160,90 @@ class PandaLiftConfig(c.RobotTaskConfig):
     # lies on the floor.
     success: c.PoseReached | None = c.PoseReached(command="object_pose", position_error=0.05)
     rewards_per_second: bool = True
+
+
+# mjlab's Mjlab-Lift-Cube-Yam (tasks/manipulation/lift_cube_env_cfg.py with config/yam) on
+# Menagerie's YAM (`yam.ROBOT`): a 4 cm, 50 g cube dropped in front of the arm at a random yaw,
+# to be carried to a position drawn every 8-12 s of a 20 s episode. Menagerie's floor lies 1 cm
+# under the arm's base, where mjlab's lies 1 cm under its robot: the heights below are mjlab's,
+# in the base's frame.
+YAM_CUBE = "cube"
+
+
+class YamLiftCommands(c.Group):
+    lift_height: c.UniformPoseCommand | None = c.UniformPoseCommand(
+        body=YAM_CUBE, base_body=yam.BASE, resampling_time_range=(8.0, 12.0),
+        pos_x=(0.3, 0.5), pos_y=(-0.2, 0.2), pos_z=(0.19, 0.39), roll=(0.0, 0.0),
+        pitch=(0.0, 0.0), yaw=(0.0, 0.0))
+
+
+class YamLiftObservations(c.Group):
+    joint_pos: c.JointPos | None = c.JointPos(noise=0.01)
+    joint_vel: c.JointVel | None = c.JointVel(noise=1.5)
+    ee_to_cube: c.ObjectFromSite | None = c.ObjectFromSite(
+        object=YAM_CUBE, site=yam.HAND, base_body=yam.BASE, noise=0.01)
+    cube_to_goal: c.ObjectToTarget | None = c.ObjectToTarget(
+        object=YAM_CUBE, command="lift_height", noise=0.01)
+    actions: c.LastAction | None = c.LastAction()
+
+
+class YamLiftRewards(c.Group):
+    lift: c.ObjectStagedReach | None = c.ObjectStagedReach(
+        weight=1.0, object=YAM_CUBE, command="lift_height", site=yam.HAND, reaching_std=0.2,
+        bringing_std=0.3)
+    lift_precise: c.ObjectGoalDistance | None = c.ObjectGoalDistance(
+        weight=1.0, object=YAM_CUBE, command="lift_height", std=0.05, kernel="gaussian",
+        minimal_height=None)
+    action_rate_l2: c.ActionRateL2 | None = c.ActionRateL2(weight=-0.01)
+    joint_pos_limits: c.SoftJointPosLimits | None = c.SoftJointPosLimits(weight=-10.0)
+    joint_vel_hinge: c.JointVelHinge | None = c.JointVelHinge(weight=-0.01, max_vel=0.5)
+
+
+class YamLiftTerminations(c.Group):
+    # The hand (its subtree: the wrist link and fingers) pressing on the floor.
+    ee_ground_collision: c.IllegalContact | None = c.IllegalContact(
+        bodies=["link_6"], against="world", threshold=10.0)
+
+
+class YamLiftEvents(c.Group):
+    # mjlab drops the cube at x 0.2-0.4 m, y -0.2-0.2 m, 1-4 cm up, at any yaw, whenever it
+    # draws a target; here at each reset.
+    reset_cube: c.ResetRootUniform | None = c.ResetRootUniform(
+        body=YAM_CUBE, pose_range={"x": (-0.1, 0.1), "y": (-0.2, 0.2), "z": (0.0, 0.03),
+                                   "yaw": (-math.pi, math.pi)})
+    fingertip_friction: c.RandomizeFriction | None = c.RandomizeFriction(
+        bodies=yam.FINGERS, friction_range=(0.3, 1.5))
+
+
+class YamLiftCurriculum(c.Group):
+    # mjlab's: the joint speed penalty ten times heavier after 500 iterations of 24 steps, a
+    # hundred times after 1,000.
+    joint_vel_hinge: c.RewardWeight | None = c.RewardWeight(
+        term="joint_vel_hinge", weight=-0.1, num_steps=500 * 24, then=[(1000 * 24, -1.0)])
+
+
+class YamLiftConfig(c.RobotTaskConfig):
+    robot: RobotDescription | None = yam.ROBOT
+    objects: dict[str, c.Box] = {YAM_CUBE: c.Box(size=(0.02, 0.02, 0.02), mass=0.05,
+                                                 pos=(0.3, 0.0, 0.01))}
+    num_envs: int = Field(256, gt=0, le=2**20, description="parallel environments")
+    episode_length_s: float = Field(20.0, gt=0, le=1e6, description="time-out, in seconds")
+    # mjlab's 200 Hz physics and 50 Hz control, its solver settings and elliptic cones.
+    sim_dt: float | None = Field(0.005, gt=0, description="physics step")
+    decimation: int = Field(4, gt=0, le=1000, description="physics steps per env step")
+    solver_iterations: int | None = 10
+    ls_iterations: int | None = 20
+    impratio: float | None = 10.0
+    cone: Literal["pyramidal", "elliptic"] | None = "elliptic"
+    nconmax: int | None = 55
+    njmax: int | None = 600
+    actions: c.JointPosition = c.JointPosition(scale=None)
+    # mjlab does not clip: the shoulder's scale is 0.16 rad per unit of action.
+    clip_actions: float = 100.0
+    commands: YamLiftCommands = YamLiftCommands()
+    observations: YamLiftObservations = YamLiftObservations()
+    rewards: YamLiftRewards = YamLiftRewards()
+    terminations: YamLiftTerminations = YamLiftTerminations()
+    events: YamLiftEvents = YamLiftEvents()
+    curriculum: YamLiftCurriculum = YamLiftCurriculum()
+    success: c.PoseReached | None = c.PoseReached(command="lift_height", position_error=0.05)

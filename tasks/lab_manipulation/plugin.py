@@ -1,6 +1,6 @@
 """Registers the manipulation tasks through the same hook a third-party package would use."""
 
-from lab_manipulation import panda
+from lab_manipulation import panda, yam
 from labcli.envs.spec import TaskSpec
 from labcli.plugins.hookspecs import hookimpl
 
@@ -8,14 +8,16 @@ TASK = "labcli.envs.mdp.task:RobotTask"
 REACH_SUCCESS = ("at the 12 s time-out, the hand within 5 cm and 0.35 rad of the pose "
                  "commanded last")
 LIFT_SUCCESS = "at the 5 s time-out, the cube within 5 cm of the position commanded"
+YAM_LIFT_SUCCESS = "at the 20 s time-out, the cube within 5 cm of the position commanded last"
 
 
-def _isaac_ppo(network: list[int], learning_rate: float, epochs: int, entropy: float,
-               iterations: int, gamma: float = 0.99, lam: float = 0.95) -> dict:
-    """An Isaac Lab manipulation agent (24 steps per env, ELU networks, 4 mini-batches, the
-    learning rate adapted to a KL of 0.01, no observation normalization) in rsl_rl's and
-    skrl's keys: 256 envs on the CPU, Isaac Lab's 4,096 on the GPU (warp backend), `iterations`
-    on both."""
+def _ppo(network: list[int], learning_rate: float, epochs: int, entropy: float,
+         iterations: int, gamma: float = 0.99, lam: float = 0.95,
+         normalize: bool = False) -> dict:
+    """An Isaac Lab (or mjlab) manipulation agent (24 steps per env, ELU networks, 4
+    mini-batches, the learning rate adapted to a KL of 0.01; observations normalized by their
+    running statistics if `normalize`, as mjlab's) in rsl_rl's and skrl's keys: 256 envs on
+    the CPU, 4,096 on the GPU (warp backend), `iterations` on both."""
     env = {"env": {"num_envs": 256}}
     gpu = {"env": {"num_envs": 4096}, "agent": {"max_iterations": iterations}}
     return {
@@ -24,13 +26,13 @@ def _isaac_ppo(network: list[int], learning_rate: float, epochs: int, entropy: f
             "critic_hidden_dims": network, "activation": "elu", "learning_rate": learning_rate,
             "desired_kl": 0.01, "num_learning_epochs": epochs, "num_mini_batches": 4,
             "entropy_coef": entropy, "gamma": gamma, "lam": lam,
-            "empirical_normalization": False}},
+            "empirical_normalization": normalize}},
         "skrl": {**env, "warp": gpu, "agent": {
             "max_iterations": iterations, "rollouts": 24, "learning_epochs": epochs,
             "mini_batches": 4, "learning_rate": learning_rate, "desired_kl": 0.01,
             "entropy_loss_scale": entropy, "discount_factor": gamma, "gae_lambda": lam,
             "value_loss_scale": 1.0, "hidden_sizes": network, "activation": "elu",
-            "normalize_obs": False, "normalize_value": False}},
+            "normalize_obs": normalize, "normalize_value": False}},
     }
 
 
@@ -42,6 +44,10 @@ REACH_AGENT = {"network": [64, 64], "learning_rate": 1e-3, "epochs": 8, "entropy
 # entropy 0.006, gamma 0.98, 1,500 iterations.
 LIFT_AGENT = {"network": [256, 128, 64], "learning_rate": 1e-4, "epochs": 5, "entropy": 0.006,
               "iterations": 1500, "gamma": 0.98}
+# mjlab's YAM lift agent (tasks/manipulation/config/yam/rl_cfg.py): [512, 256, 128] with
+# observation normalization, 5 epochs, lr 1e-3, entropy 0.005, 5,000 iterations.
+YAM_LIFT_AGENT = {"network": [512, 256, 128], "learning_rate": 1e-3, "epochs": 5,
+                  "entropy": 0.005, "iterations": 5000, "normalize": True}
 
 
 @hookimpl
@@ -52,11 +58,18 @@ def register_tasks(register):
         description="Isaac Lab's Reach-Franka: MuJoCo Menagerie's Franka Panda moves its hand "
                     "to commanded poses",
         success=REACH_SUCCESS,
-        framework_defaults=_isaac_ppo(**REACH_AGENT)))
+        framework_defaults=_ppo(**REACH_AGENT)))
     register(TaskSpec(
         name="panda-lift", task=TASK, config="lab_manipulation.config:PandaLiftConfig",
         model=panda.CUBE_MODEL,
         description="Isaac Lab's Lift-Cube-Franka: MuJoCo Menagerie's Franka Panda picks a "
                     "cube off the floor and carries it to commanded positions",
         success=LIFT_SUCCESS,
-        framework_defaults=_isaac_ppo(**LIFT_AGENT)))
+        framework_defaults=_ppo(**LIFT_AGENT)))
+    register(TaskSpec(
+        name="yam-lift", task=TASK, config="lab_manipulation.config:YamLiftConfig",
+        model=yam.MODEL,
+        description="mjlab's Lift-Cube-Yam: MuJoCo Menagerie's i2rt YAM picks a cube off the "
+                    "floor and carries it to commanded positions",
+        success=YAM_LIFT_SUCCESS,
+        framework_defaults=_ppo(**YAM_LIFT_AGENT)))

@@ -1,0 +1,246 @@
+"""yam-lift: mjlab's Lift-Cube-Yam on Menagerie's i2rt YAM, and the building blocks it added
+(a cube added to the model, a site and the collision set of a robot description, the staged
+lift rewards, an end effector's contact with the ground, a curriculum in stages)."""
+
+import math
+
+import mujoco
+import numpy as np
+import pytest
+import torch
+from conftest import needs_menagerie, needs_warp
+
+from labcli.envs.mdp import config as c
+from labcli.envs.mdp import robot_model
+from labcli.envs.mdp.description import Collisions, RobotDescription
+from labcli.errors import LabError
+from labcli.gym import make_env
+
+pytestmark = needs_menagerie("i2rt_yam")
+ARM = [f"joint{i}" for i in range(1, 7)]
+# The cube's free joint after the arm's 6 joints and 2 fingers: position, then orientation.
+CUBE_POS, CUBE_QUAT = slice(8, 11), slice(11, 15)
+REST = 0.01  # the 2 cm half-size cube's centre resting on Menagerie's floor, 1 cm below the base
+
+
+def lift(n: int, *overrides: str):
+    env = make_env("yam-lift", num_envs=n, seed=0, backend="cpu", device="cpu",
+                   overrides=["env.observation_noise=false", *overrides])
+    env.reset()
+    return env
+
+
+def pinch_down_at(model: mujoco.MjModel, qpos: np.ndarray, pos: np.ndarray,
+                  yaw: float) -> np.ndarray:
+    """The arm's joint angles that put the `pinch` site at `pos`, pointing down, its fingers
+    closing across the cube's faces (the site's y axis along the cube's yaw): damped least
+    squares on MuJoCo's site Jacobian, within the joints' ranges."""
+    data, site = mujoco.MjData(model), model.site("pinch").id
+    data.qpos[:] = qpos
+    arm = [model.joint(j).qposadr[0] for j in ARM]
+    low, high = model.jnt_range[:6].T
+    for _ in range(400):
+        mujoco.mj_kinematics(model, data)
+        mujoco.mj_comPos(model, data)
+        rot = data.site_xmat[site].reshape(3, 3)
+        across = np.array([math.cos(yaw), math.sin(yaw), 0.0])
+        across = across if across @ rot[:, 1] >= 0 else -across
+        down = np.array([0.0, 0.0, -1.0])
+        goal = np.column_stack([np.cross(across, down), across, down])
+        error, turn = np.zeros(6), np.zeros(4)
+        error[:3] = pos - data.site_xpos[site]
+        mujoco.mju_mat2Quat(turn, (goal @ rot.T).ravel())
+        mujoco.mju_quat2Vel(error[3:], turn, 1.0)
+        if np.abs(error).max() < 1e-7:
+            break
+        jac_pos, jac_rot = np.zeros((3, model.nv)), np.zeros((3, model.nv))
+        mujoco.mj_jacSite(model, data, jac_pos, jac_rot, site)
+        jac = np.vstack([jac_pos, jac_rot])[:, arm]
+        step = jac.T @ np.linalg.solve(jac @ jac.T + 1e-4 * np.eye(6), error)
+        data.qpos[arm] = np.clip(data.qpos[arm] + 0.5 * step, low, high)
+    assert np.abs(error).max() < 1e-5
+    return data.qpos[arm].copy()
+
+
+def settle(env) -> None:
+    """The cubes, dropped from up to 3 cm at reset, come to rest on the floor."""
+    for _ in range(25):
+        env.step(torch.zeros(env.num_envs, 7, device=env.sim.qpos.device))
+
+
+def grasp(env) -> list[torch.Tensor]:
+    """The actions of a scripted grasp of each env's cube where it rests: the pinch 12 cm over
+    it with the gripper open, down to it along a straight line, the gripper closed, up 10 cm.
+    Each step's joint targets start from the last ones (small steps of the hand)."""
+    model, task = env.sim.model, env.task
+    scales = np.array([g.scale(2.0, 2.0) for g in task.cfg.robot.actuators.values()])
+    default = task.robot.default_joint_pos[0].double().cpu().numpy()
+    qpos = env.sim.qpos.double().cpu().numpy().copy()  # a copy: planning must not move the arm
+    cubes = qpos[:, CUBE_POS].copy()
+    w, z = qpos[:, CUBE_QUAT][:, 0], qpos[:, CUBE_QUAT][:, 3]
+    yaws = 2.0 * np.arctan2(z, w)
+    heights = ([0.12] * 40 + np.linspace(0.12, 0.0, 50).tolist() + [0.0] * 80
+               + np.linspace(0.0, 0.1, 100).tolist() + [0.1] * 20)
+    grips = [0.0375] * 100 + [0.0] * 190  # open, then closed from 10 steps at the cube
+    arm = [model.joint(j).qposadr[0] for j in ARM]
+    plan = []
+    for height, grip in zip(heights, grips, strict=True):
+        rows = []
+        for i in range(env.num_envs):
+            qpos[i, arm] = pinch_down_at(model, qpos[i], cubes[i] + [0, 0, height], yaws[i])
+            rows.append((np.append(qpos[i, arm], grip) - default[:7]) / scales)
+        plan.append(torch.tensor(np.stack(rows), dtype=torch.float32))
+    return plan
+
+
+def test_a_scripted_grasp_lifts_the_cube_and_the_lift_terms_see_it():
+    """Over the cube with the gripper open, down to it, closed, up by 10 cm: the pads hold the
+    4 cm cube (the fingers stop 2 cm out), it leaves the floor with the hand, and the
+    observations and staged rewards match hand-computed values."""
+    env = lift(2)
+    try:
+        model, task = env.sim.model, env.task
+        assert not task.robot.floating  # the cube's free joint is not the arm's base
+        settle(env)
+        assert env.sim.qpos[:, 10].tolist() == pytest.approx([REST, REST], abs=3e-4)
+        for action in grasp(env):
+            env.step(action)
+        held = env.sim.qpos[:, CUBE_POS].double()
+        assert (held[:, 2] > REST + 0.08).all()  # the hand rose 10 cm
+        assert env.sim.qpos[:, 6].double().numpy() == pytest.approx([0.02, 0.02], abs=1e-3)
+        # Observations: the cube from the pinch and the target from the cube, in the base's
+        # frame (the arm stands at the origin unturned: the world's). The pinch is read from a
+        # frame sensor, which MuJoCo computes at the last physics step's start: 0.1 mm back.
+        names = task.observation_names
+        obs = env.task.observations()[0].double()
+        pinch = torch.tensor(_site(model, env, 0, "pinch"), dtype=torch.float64)
+        ee_to_cube = obs[names.index("ee_to_cube.x"):names.index("ee_to_cube.z") + 1]
+        assert ee_to_cube == pytest.approx((held[0] - pinch).tolist(), abs=2e-4)
+        target = task.command("lift_height").command[0, :3].double()
+        cube_to_goal = obs[names.index("cube_to_goal.x"):names.index("cube_to_goal.z") + 1]
+        assert cube_to_goal == pytest.approx((target - held[0]).tolist(), abs=1e-6)
+        rewards = task.reward_terms()
+        reach = math.exp(-float(ee_to_cube.square().sum()) / 0.2**2)
+        bring = float((target - held[0]).square().sum())
+        assert float(rewards["lift"][0]) == pytest.approx(
+            reach * (1.0 + math.exp(-bring / 0.3**2)), rel=1e-5)
+        assert float(rewards["lift_precise"][0]) == pytest.approx(math.exp(-bring / 0.05**2),
+                                                                  rel=1e-5, abs=1e-12)
+        assert not env.task.terminations()["ee_ground_collision"].any()
+    finally:
+        env.close()
+
+
+@pytest.mark.gpu
+@needs_warp()
+def test_both_backends_grasp_and_lift_the_cube_alike():
+    """MuJoCo Warp holds the cube between the YAM's finger pads as MuJoCo does: from the same
+    state, the same scripted grasp lifts it 9 cm or more on both, to within a centimetre of
+    each other."""
+    from backends import lift_and_copy
+
+    cpu = lift(4)
+    gpu = make_env("yam-lift", num_envs=4, seed=0, overrides=["env.observation_noise=false"],
+                   backend="warp", device="cuda")
+    gpu.reset()
+    settle(cpu)
+    lift_and_copy(cpu, gpu, height=0.0)
+    try:
+        for action in grasp(cpu):
+            cpu.step(action)
+            gpu.step(action.cuda())
+        cubes = [env.sim.qpos[:, CUBE_POS].double().cpu() for env in (cpu, gpu)]
+        assert (cubes[0][:, 2] > REST + 0.08).all() and (cubes[1][:, 2] > REST + 0.08).all()
+        assert torch.allclose(cubes[0], cubes[1], atol=0.01)
+    finally:
+        cpu.close()
+        gpu.close()
+
+
+def _site(model: mujoco.MjModel, env, i: int, name: str) -> list[float]:
+    data = mujoco.MjData(model)
+    data.qpos[:] = env.sim.qpos[i].double().numpy()
+    mujoco.mj_kinematics(model, data)
+    return data.site(name).xpos.tolist()
+
+
+def test_the_hand_pressed_on_the_floor_ends_the_episode_and_only_the_gripper_collides():
+    env = lift(1)
+    try:
+        model = env.sim.model
+        colliding = {model.body(int(model.geom_bodyid[g])).name for g in range(model.ngeom)
+                     if model.geom_contype[g] or model.geom_conaffinity[g]}
+        assert colliding == {"world", "link_6", "lf_rot", "lf_down", "rf_rot", "rf_down", "cube"}
+        pads = [g for g in range(model.ngeom) if model.geom_type[g] == mujoco.mjtGeom.mjGEOM_SPHERE
+                and model.body(int(model.geom_bodyid[g])).name in ("lf_down", "rf_down")]
+        assert len(pads) == 12
+        assert {int(model.geom_condim[g]) for g in pads} == {6}
+        assert {int(model.geom_priority[g]) for g in pads} == {1}
+        # The hand driven 5 cm into the floor at its home reach.
+        qpos = env.sim.qpos[0].double().numpy().copy()
+        down = pinch_down_at(model, qpos, np.array([0.3, 0.2, -0.05]), 0.0)
+        default = env.task.robot.default_joint_pos[0].double().numpy()
+        scales = np.array([g.scale(2.0, 2.0) for g in env.task.cfg.robot.actuators.values()])
+        action = torch.tensor((np.append(down, 0.0375) - default[:7]) / scales,
+                              dtype=torch.float32)[None]
+        ended = False
+        for _ in range(150):
+            _, _, terminated, _, _ = env.step(action)
+            ended |= bool(terminated[0])
+        assert ended
+    finally:
+        env.close()
+
+
+def test_the_joint_speed_penalty_grows_in_mjlab_s_stages():
+    env = lift(1)
+    try:
+        task = env.task
+        column = task.cfg.rewards.terms()
+        index = [name for name, _ in column].index("joint_vel_hinge")
+        for steps, weight in ((0, -0.01), (11_999, -0.1), (23_998, -0.1), (23_999, -1.0)):
+            task.steps.fill_(steps)
+            env.step(torch.zeros(1, 7))
+            # The env counts this step before the curriculum runs: 12,000 and 24,000 then.
+            assert float(task.reward_weights[0, index]) == pytest.approx(weight)
+    finally:
+        env.close()
+
+
+def test_stages_out_of_order_and_unmatched_collisions_are_one_line():
+    with pytest.raises(ValueError, match="give them in order"):
+        c.RewardWeight(term="x", weight=-0.1, num_steps=100, then=[(50, -1.0)])
+    spec = mujoco.MjSpec.from_string("""<mujoco model="arm"><worldbody><body name="link">
+        <joint name="elbow"/><geom size="0.1"/></body></worldbody>
+        <actuator><position joint="elbow"/></actuator></mujoco>""")
+    robot = RobotDescription(base="fixed", actuators={"arm": {"joints": ["elbow"],
+                                                              "effort_limit": 1.0,
+                                                              "armature": 0.01}},
+                             collisions=[Collisions(bodies=["hand"])])
+    with pytest.raises(LabError) as err:
+        robot_model.apply(spec, robot)
+    assert err.value.message == ("env.robot.collisions' entry for bodies ['hand'] matches no "
+                                 "collision geom of the robot")
+
+
+def test_the_yam_s_gains_and_action_scales_are_mjlab_s():
+    """mjlab's YAM_ACTION_SCALE: a quarter of each motor's effort over its stiffness, the
+    stiffness from the joint's effective inertia at 2 Hz (the gripper's at 1 Hz)."""
+    env = lift(1)
+    try:
+        model = env.sim.model
+        kp = model.actuator_gainprm[:, 0]
+        assert kp.tolist() == pytest.approx([0.123153 * (4 * math.pi) ** 2,
+                                             0.277411 * (4 * math.pi) ** 2,
+                                             0.232763 * (4 * math.pi) ** 2,
+                                             0.030154 * (4 * math.pi) ** 2,
+                                             0.009126 * (4 * math.pi) ** 2,
+                                             0.002868 * (4 * math.pi) ** 2,
+                                             2.781624 * (2 * math.pi) ** 2])
+        gripper_force = 10.0 / (0.071 / 2.7) * 0.1
+        assert model.actuator_forcerange[:, 1].tolist() == pytest.approx(
+            [28.0] * 3 + [10.0] * 3 + [gripper_force])
+        scales = [g.scale(2.0, 2.0) for g in env.task.cfg.robot.actuators.values()]
+        assert scales == pytest.approx((0.25 * model.actuator_forcerange[:, 1] / kp).tolist())
+    finally:
+        env.close()
