@@ -201,8 +201,9 @@ def test_the_joint_speed_penalty_grows_in_mjlab_s_stages():
         for steps, weight in ((0, -0.01), (11_999, -0.1), (23_998, -0.1), (23_999, -1.0)):
             task.steps.fill_(steps)
             env.step(torch.zeros(1, 7))
-            # The env counts this step before the curriculum runs: 12,000 and 24,000 then.
-            assert float(task.reward_weights[0, index]) == pytest.approx(weight)
+            # The env counts this step before the curriculum runs: 12,000 and 24,000 then. Each
+            # weight is per second, as mjlab's: times the 20 ms step.
+            assert float(task.reward_weights[0, index]) == pytest.approx(weight * 0.02)
     finally:
         env.close()
 

@@ -247,3 +247,5 @@ class YamLiftConfig(c.RobotTaskConfig):
     events: YamLiftEvents = YamLiftEvents()
     curriculum: YamLiftCurriculum = YamLiftCurriculum()
     success: c.PoseReached | None = c.PoseReached(command="lift_height", position_error=0.05)
+    # mjlab's reward manager weighs each step's reward by the step's duration (scale_by_dt).
+    rewards_per_second: bool = True
