@@ -22,7 +22,8 @@ from labcli.testing import check_task, check_task_outputs, check_task_resume
     pytest.param("g1-flat", marks=needs_menagerie("unitree_g1")),
     pytest.param("g1-rough", marks=needs_menagerie("unitree_g1")),
     pytest.param("panda-reach", marks=needs_menagerie("franka_emika_panda")),
-    pytest.param("panda-lift", marks=needs_menagerie("franka_emika_panda"))])
+    pytest.param("panda-lift", marks=needs_menagerie("franka_emika_panda")),
+    pytest.param("yam-lift", marks=needs_menagerie("i2rt_yam"))])
 def test_the_built_in_tasks_pass_the_task_checks(task):
     check_task(task)
 

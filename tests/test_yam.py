@@ -208,9 +208,11 @@ def test_the_joint_speed_penalty_grows_in_mjlab_s_stages():
         env.close()
 
 
-def test_stages_out_of_order_and_unmatched_collisions_are_one_line():
+def test_stages_out_of_order_a_site_dropped_and_unmatched_collisions_are_one_line():
     with pytest.raises(ValueError, match="give them in order"):
         c.RewardWeight(term="x", weight=-0.1, num_steps=100, then=[(50, -1.0)])
+    with pytest.raises(ValueError, match="it needs body"):
+        c.UniformPoseCommand(site="hand", base_body="base", place={"x": (0.0, 0.1)})
     spec = mujoco.MjSpec.from_string("""<mujoco model="arm"><worldbody><body name="link">
         <joint name="elbow"/><geom size="0.1"/></body></worldbody>
         <actuator><position joint="elbow"/></actuator></mujoco>""")
@@ -245,3 +247,33 @@ def test_the_yam_s_gains_and_action_scales_are_mjlab_s():
         assert scales == pytest.approx((0.25 * model.actuator_forcerange[:, 1] / kp).tolist())
     finally:
         env.close()
+
+
+def test_each_target_drawn_later_drops_the_cube_anew_and_a_copy_of_the_env_does_the_same():
+    """mjlab's LiftingCommand: a target drawn during the episode comes with the cube dropped
+    at rest somewhere in its box (x 0.2-0.4 m, y -0.2-0.2 m, 1-4 cm up), by the next step's
+    physics; an env restored from a state taken in between drops it alike."""
+    fast = "env.commands.lift_height.resampling_time_range=[0.1,0.1]"  # a draw every 5 steps
+    env, twin = lift(2, fast), lift(2, fast)
+    try:
+        command = env.task.command("lift_height")
+        hold = torch.zeros(2, 7)
+        for _ in range(5):
+            env.step(hold)
+        assert command.to_drop.all()
+        where = env.sim.qpos[:, CUBE_POS].clone()
+        twin.set_state(env.get_state())
+        env.step(hold)
+        twin.step(hold)
+        assert not command.to_drop.any()
+        dropped = env.sim.qpos[:, CUBE_POS].double()
+        assert not torch.allclose(dropped, where.double())
+        assert ((dropped[:, 0] > 0.2) & (dropped[:, 0] < 0.4)).all()
+        assert (dropped[:, 1].abs() < 0.2).all()
+        assert ((dropped[:, 2] > REST - 1e-3) & (dropped[:, 2] < REST + 0.031)).all()
+        # Let go at rest: one physics step's fall at most.
+        assert float(env.sim.qvel[:, 8:11].abs().max()) < 9.81 * 0.02 + 1e-6
+        assert torch.equal(env.sim.qpos, twin.sim.qpos)
+    finally:
+        env.close()
+        twin.close()

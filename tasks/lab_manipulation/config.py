@@ -168,13 +168,16 @@ class PandaLiftConfig(c.RobotTaskConfig):
 # under the arm's base, where mjlab's lies 1 cm under its robot: the heights below are mjlab's,
 # in the base's frame.
 YAM_CUBE = "cube"
+# Where mjlab drops the cube (x 0.2-0.4 m, y -0.2-0.2 m, 1-4 cm over the floor's 2 cm rest
+# height, any yaw): as offsets from its starting pose.
+YAM_CUBE_DROP = {"x": (-0.1, 0.1), "y": (-0.2, 0.2), "z": (0.0, 0.03), "yaw": (-math.pi, math.pi)}
 
 
 class YamLiftCommands(c.Group):
     lift_height: c.UniformPoseCommand | None = c.UniformPoseCommand(
         body=YAM_CUBE, base_body=yam.BASE, resampling_time_range=(8.0, 12.0),
         pos_x=(0.3, 0.5), pos_y=(-0.2, 0.2), pos_z=(0.19, 0.39), roll=(0.0, 0.0),
-        pitch=(0.0, 0.0), yaw=(0.0, 0.0))
+        pitch=(0.0, 0.0), yaw=(0.0, 0.0), place=YAM_CUBE_DROP)
 
 
 class YamLiftObservations(c.Group):
@@ -206,11 +209,9 @@ class YamLiftTerminations(c.Group):
 
 
 class YamLiftEvents(c.Group):
-    # mjlab drops the cube at x 0.2-0.4 m, y -0.2-0.2 m, 1-4 cm up, at any yaw, whenever it
-    # draws a target; here at each reset.
-    reset_cube: c.ResetRootUniform | None = c.ResetRootUniform(
-        body=YAM_CUBE, pose_range={"x": (-0.1, 0.1), "y": (-0.2, 0.2), "z": (0.0, 0.03),
-                                   "yaw": (-math.pi, math.pi)})
+    # mjlab drops the cube whenever it draws a target: at reset here, later the command does.
+    reset_cube: c.ResetRootUniform | None = c.ResetRootUniform(body=YAM_CUBE,
+                                                               pose_range=YAM_CUBE_DROP)
     fingertip_friction: c.RandomizeFriction | None = c.RandomizeFriction(
         bodies=yam.FINGERS, friction_range=(0.3, 1.5))
 

@@ -11,7 +11,7 @@ import torch
 from labcli.envs.markers import Marker
 from labcli.envs.mdp import config as c
 from labcli.envs.mdp import math, names, objects, sensors
-from labcli.envs.mdp.events import Uniform
+from labcli.envs.mdp.events import Uniform, offset_pose
 from labcli.errors import LabError
 
 if TYPE_CHECKING:
@@ -157,7 +157,7 @@ class UniformPoseCommand:
 
     names = ["pos_x", "pos_y", "pos_z", "quat_w", "quat_x", "quat_y", "quat_z"]
     units = ["m, base frame"] * 3 + ["unit quaternion, base frame"] * 4
-    carried = ("command", "time_left", "errors")
+    carried = ("command", "time_left", "errors", "to_drop")
 
     @staticmethod
     def sensors(model: mujoco.MjModel, cfg: c.UniformPoseCommand) -> list[sensors.Sensor]:
@@ -179,6 +179,14 @@ class UniformPoseCommand:
         self.base = objects.fixed_frame(task, cfg.base_body)
         self._site = sensors.columns(task, [[s.name for s in self.sensors(task.model, cfg)]])
         self._target_pos, self._target_quat = self.command[:, :3], self.command[:, 3:]
+        # Envs whose object the next step's physics drops anew (`place`).
+        self.to_drop = torch.zeros(n, dtype=torch.bool, device=like.device)
+        if cfg.place is not None:
+            ranges = [cfg.place.get(k, (0.0, 0.0)) for k in c.POSE_KEYS]
+            self._drop = Uniform(task, ranges)
+            self._turns = any(lo != 0.0 or hi != 0.0 for lo, hi in ranges[3:])
+            self._object = objects.free_body(task, cfg.body)
+            self._home = task.robot.default_qpos[:, self._object.qpos]
 
     def __call__(self) -> torch.Tensor:
         return self.command
@@ -216,6 +224,8 @@ class UniformPoseCommand:
         return self.robot.per_state(("orientation_error", self), compute)
 
     def reset(self, mask: torch.Tensor) -> None:
+        # The episode's start places the object itself (a reset event).
+        self.to_drop.logical_and_(mask.logical_not())
         self._resample(mask)
 
     def after_step(self) -> None:
@@ -225,6 +235,22 @@ class UniformPoseCommand:
         with self.task.rng.only_for(expired) as some:
             if some:
                 self._resample(expired)
+                if self.cfg.place is not None:
+                    self.to_drop.logical_or_(expired)
+
+    def pre_physics(self) -> None:
+        """Drops the objects of the envs that drew a target in the last step, before this
+        step's physics: the state the terms read after it is the physics' own."""
+        if self.cfg.place is None:
+            return
+        with self.task.rng.only_for(self.to_drop) as some:
+            if some:
+                home = self._home
+                pose = offset_pose(home[:, :3], home[:, 3:], self._drop(), self._turns)
+                qpos, qvel = self.task.sim.qpos[:, self._object.qpos], self.task.sim.qvel
+                torch.where(self.to_drop[:, None], pose, qpos, out=qpos)
+                qvel[:, self._object.qvel].masked_fill_(self.to_drop[:, None], 0.0)
+                self.to_drop.zero_()
 
     def metrics(self) -> dict[str, torch.Tensor]:
         return {"position_error": self.errors[:, 0], "orientation_error": self.errors[:, 1]}

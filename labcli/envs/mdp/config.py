@@ -105,12 +105,26 @@ class UniformPoseCommand(RangeChecked):
     roll: Range = (0.0, 0.0)
     pitch: Range = (math.pi, math.pi)
     yaw: Range = (-math.pi, math.pi)
+    place: dict[str, Range] | None = Field(None, description="with `body` an object: each "
+                                           "target drawn during an episode also drops the "
+                                           "object anew, at rest at its default pose plus "
+                                           "offsets drawn from these ranges (keys as "
+                                           "ResetRootUniform's pose_range: mjlab's "
+                                           "LiftingCommand), in the next step's physics")
 
     @model_validator(mode="after")
     def _one_frame(self) -> UniformPoseCommand:
         if (self.site is None) == (self.body is None):
             raise ValueError("a pose command tracks a site or a body: give one of site and "
                              "body, not " + ("both" if self.site else "neither"))
+        if self.place is not None:
+            if self.body is None:
+                raise ValueError("place drops the commanded object anew: it needs body (an "
+                                 "object with a free joint), not site")
+            unknown = set(self.place) - set(POSE_KEYS)
+            if unknown:
+                raise ValueError(f"place has {sorted(unknown)}; its keys are "
+                                 f"{', '.join(POSE_KEYS)}")
         return self
 
     @property

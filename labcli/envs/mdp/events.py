@@ -88,14 +88,21 @@ class reset_root_state_uniform:  # noqa: N801
             return
         offset, velocity = self.draw().split(6, dim=1)
         m = mask[:, None]
-        quat = (math.quat_mul(self.quat, math.quat_from_rpy(*offset[:, 3:].unbind(1)))
-                if self.turns else self.quat)
-        pose = torch.cat((self.pos + offset[:, :3], quat), dim=1)
+        pose = offset_pose(self.pos, self.quat, offset, self.turns)
         root_qpos = self.sim.qpos[:, self.qpos]
         torch.where(m, pose, root_qpos, out=root_qpos)
         # The free joint's angular velocity is in the root's frame.
         root_qvel = self.sim.qvel[:, self.qvel]
         torch.where(m, velocity, root_qvel, out=root_qvel)
+
+
+def offset_pose(pos: torch.Tensor, quat: torch.Tensor, offset: torch.Tensor,
+                turns: bool) -> torch.Tensor:
+    """A free joint's qpos `[n, 7]`: `pos` moved by the offset's x, y, z and `quat` turned by
+    its roll, pitch, yaw (where `turns`), `offset` `[n, 6]` in POSE_KEYS' order."""
+    if turns:
+        quat = math.quat_mul(quat, math.quat_from_rpy(*offset[:, 3:6].unbind(1)))
+    return torch.cat((pos + offset[:, :3], quat), dim=1)
 
 
 class push_by_setting_velocity:  # noqa: N801

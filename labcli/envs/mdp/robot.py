@@ -128,7 +128,8 @@ class Robot:
         # overwriting qpos0, which is also the reference of hinge angles in MuJoCo's kinematics.
         home = (model.key_qpos[names.resolve_one(model, "key", default_pose)]
                 if default_pose is not None else model.qpos0)
-        self._home = torch.as_tensor(home, dtype=dtype, device=dev).expand(
+        # The whole default state's qpos `[n, nq]` (an object's pose too).
+        self.default_qpos = torch.as_tensor(home, dtype=dtype, device=dev).expand(
             sim.num_envs, model.nq).contiguous()
         self._home_is_qpos0 = default_pose is None
         self.default_joint_pos = row(home[qadr])
@@ -200,7 +201,7 @@ class Robot:
     def reset_to_default_pose(self, mask: torch.Tensor) -> None:
         """The sim resets envs to qpos0; this puts the envs in `mask` at the default pose."""
         if not self._home_is_qpos0:
-            torch.where(mask[:, None], self._home, self.sim.qpos, out=self.sim.qpos)
+            torch.where(mask[:, None], self.default_qpos, self.sim.qpos, out=self.sim.qpos)
 
     def write_joints(self, pos: torch.Tensor, vel: torch.Tensor, mask: torch.Tensor) -> None:
         """Set the actuated joints of the envs in `mask` to `pos`, `vel` `[n, joints]`."""
