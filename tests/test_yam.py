@@ -277,3 +277,13 @@ def test_each_target_drawn_later_drops_the_cube_anew_and_a_copy_of_the_env_does_
     finally:
         env.close()
         twin.close()
+
+
+def test_an_object_or_a_site_the_model_cannot_take_is_one_line():
+    with pytest.raises(LabError) as err:
+        lift(1, "env.objects={arm: {size: [0.02, 0.02, 0.02], mass: 0.05, pos: [0.3, 0, 0.01]}}")
+    assert err.value.message == "env.objects names body 'arm', which model 'yam scene' already has"
+    with pytest.raises(LabError) as err:
+        lift(1, "env.robot.sites.pinch.body=link_7")
+    assert err.value.message.startswith("env.robot.sites' 'pinch' is on body 'link_7', which "
+                                        "model 'yam scene' does not have")
