@@ -220,7 +220,7 @@ class G1Observations(c.Group):
     base_lin_vel: c.BaseLinVel | None = c.BaseLinVel(noise=0.5)
     base_ang_vel: c.BaseAngVel | None = c.BaseAngVel(noise=0.2)
     projected_gravity: c.ProjectedGravity | None = c.ProjectedGravity(noise=0.05)
-    joint_pos: c.JointPos | None = c.JointPos(noise=0.01)
+    joint_pos: c.JointPos | None = c.JointPos(noise=0.01, biased=True)
     joint_vel: c.JointVel | None = c.JointVel(noise=1.5)
     actions: c.LastAction | None = c.LastAction()
     velocity_commands: c.GeneratedCommands | None = c.GeneratedCommands()
@@ -284,6 +284,9 @@ class G1Events(c.MotorEvents):
         interval_s=(1.0, 3.0), velocity_range={
             "x": (-0.5, 0.5), "y": (-0.5, 0.5), "z": (-0.4, 0.4), "roll": (-0.52, 0.52),
             "pitch": (-0.52, 0.52), "yaw": (-0.78, 0.78)})
+    # mjlab's encoder_bias draws up to 0.015 rad per joint; at 0 here, as the G1's figures were
+    # measured: --set "env.events.encoder_bias.bias_range=[-0.015,0.015]" for mjlab's.
+    encoder_bias: c.EncoderBias | None = c.EncoderBias(bias_range=(0.0, 0.0))
 
 
 class G1FlatConfig(Go1FlatConfig):

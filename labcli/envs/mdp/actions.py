@@ -81,6 +81,7 @@ class ActuatorDelay:
 class JointEffortAction:
     def __init__(self, task: RobotTask, cfg: c.JointEffort):
         self.scale = task.tiled(per_actuator(task, cfg.scale))
+        self.robot = task.robot
         self.offset: torch.Tensor | None = None
         self.binary: Binary | None = None
         self.commands = [f"ctrl = {s:g} * action" for s in self.scale[0].tolist()]
@@ -90,6 +91,8 @@ class JointEffortAction:
         torch.mul(actions, self.scale, out=ctrl)
         if self.offset is not None:
             ctrl.add_(self.offset)
+            if self.robot.biased:  # the servo aims where its biased encoder reads the target
+                ctrl.sub_(self.robot.encoder_bias)
         if self.binary is not None:
             self.binary(actions, ctrl)
         if self.delay is not None:

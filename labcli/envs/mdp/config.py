@@ -291,11 +291,14 @@ class HeightScan(ObsTerm):
 
 
 class JointPos(ObsTerm):
-    """Joint positions relative to the default pose (rad or m)."""
+    """Joint positions relative to the default pose (rad or m); `biased`: as the encoders read
+    them, off by the encoder bias an `EncoderBias` event draws (mjlab's `joint_pos_rel` with
+    `biased`)."""
 
     impl: ClassVar[str] = "labcli.envs.mdp.observations:joint_pos_rel"
     mirror: ClassVar[str | None] = "joints"
     unit: ClassVar[str] = "rad (m for a slide joint) from the default pose"
+    biased: bool = False
 
 
 class JointPosNormalized(ObsTerm):
@@ -946,6 +949,19 @@ class RandomizeJointArmature(JointModelEvent):
     Lab's `randomize_joint_parameters` for armature."""
 
     impl: ClassVar[str] = "labcli.envs.mdp.events:randomize_joint_armature"
+
+
+class EncoderBias(EventTerm):
+    """A constant offset b per actuated joint and env, drawn from `bias_range` (rad, m for a
+    slide joint) at start-up or every reset: encoders that read q + b. Joint positions observed
+    with `JointPos(biased=True)` read it, and position targets are taken back by it (the servo
+    aims for target - b, where its encoder reads the target): mjlab's `encoder_bias`."""
+
+    impl: ClassVar[str] = "labcli.envs.mdp.events:encoder_bias"
+    mode: Literal["startup", "reset"] = "startup"
+    joints: list[str] = Field(default_factory=lambda: [".*"], min_length=1,
+                              description="actuated joints it offsets (patterns)")
+    bias_range: Range = (0.0, 0.0)
 
 
 class RandomizeActuatorGains(EventTerm):

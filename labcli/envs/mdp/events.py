@@ -300,3 +300,30 @@ class randomize_actuator_gains(_ModelEvent):  # noqa: N801
         if len(self.explicit):
             self.motors.kp[:, self.explicit] = motors[..., 0].to(self.motors.kp.dtype)
             self.motors.kd[:, self.explicit] = motors[..., 1].to(self.motors.kd.dtype)
+
+
+class encoder_bias:  # noqa: N801 - a term, named as mjlab's
+    carried = ("bias",)
+
+    def __init__(self, task: RobotTask, cfg: c.EncoderBias):
+        robot = task.robot
+        joints = set(names.resolve(task.model, "joint", cfg.joints))
+        columns = [i for i, j in enumerate(robot.joint_ids) if j in joints]
+        if not columns:
+            raise LabError(f"env.events' encoder bias names joints {cfg.joints}, none of them "
+                           "actuated", f"name some of {', '.join(robot.joint_names)}")
+        self.bias, robot.biased = robot.encoder_bias, True
+        self.mask = torch.zeros_like(self.bias[0]).index_fill_(
+            0, torch.tensor(columns, device=self.bias.device), 1.0)
+        self.draw = Uniform(task, [cfg.bias_range] * self.bias.shape[1])
+        self.everyone = torch.ones(task.num_envs, dtype=torch.bool, device=self.bias.device)
+        if cfg.bias_range == (0.0, 0.0):
+            return  # the encoders read true: nothing is drawn, the random streams stay as they are
+        if cfg.mode == "reset":
+            self.reset = self.apply
+        else:  # RobotTask runs it once, at the env's first reset
+            self.startup = lambda: self.apply(self.everyone)
+
+    def apply(self, mask: torch.Tensor) -> None:
+        drawn = self.draw().mul_(self.mask).to(self.bias.dtype)
+        torch.where(mask[:, None], drawn, self.bias, out=self.bias)

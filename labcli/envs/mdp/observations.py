@@ -107,7 +107,8 @@ def base_angle_to_target(task: RobotTask, cfg: c.AngleToTarget) -> torch.Tensor:
 
 
 def joint_pos_rel(task: RobotTask, cfg: c.JointPos) -> torch.Tensor:
-    return task.robot.joint_pos - task.robot.default_joint_pos
+    relative = task.robot.joint_pos - task.robot.default_joint_pos
+    return relative.add_(task.robot.encoder_bias) if cfg.biased else relative
 
 
 def joint_pos_limit_normalized(task: RobotTask, cfg: c.JointPosNormalized) -> torch.Tensor:

@@ -133,6 +133,10 @@ class Robot:
             sim.num_envs, model.nq).contiguous()
         self._home_is_qpos0 = default_pose is None
         self.default_joint_pos = row(home[qadr])
+        # What each joint's encoder adds to its position (an `EncoderBias` event draws it; it
+        # then sets `biased`, and position targets are taken back by it).
+        self.encoder_bias = torch.zeros_like(self.default_joint_pos)
+        self.biased = False
         gear = torch.as_tensor(model.actuator_gear[self.actuators, 0]).abs()
         self.gear = row(gear)
         self.gear_ratio_scaled = row(gear / gear.max())
