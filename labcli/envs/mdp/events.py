@@ -312,13 +312,14 @@ class encoder_bias:  # noqa: N801 - a term, named as mjlab's
         if not columns:
             raise LabError(f"env.events' encoder bias names joints {cfg.joints}, none of them "
                            "actuated", f"name some of {', '.join(robot.joint_names)}")
-        self.bias, robot.biased = robot.encoder_bias, True
+        self.bias = robot.encoder_bias
         self.mask = torch.zeros_like(self.bias[0]).index_fill_(
             0, torch.tensor(columns, device=self.bias.device), 1.0)
         self.draw = Uniform(task, [cfg.bias_range] * self.bias.shape[1])
         self.everyone = torch.ones(task.num_envs, dtype=torch.bool, device=self.bias.device)
         if cfg.bias_range == (0.0, 0.0):
             return  # the encoders read true: nothing is drawn, the random streams stay as they are
+        robot.biased = True
         if cfg.mode == "reset":
             self.reset = self.apply
         else:  # RobotTask runs it once, at the env's first reset
