@@ -1,6 +1,6 @@
-"""What an arm's terms read besides the robot: a fixed base's frame, and the free bodies it
-handles (a cube to lift), as views of the sim's state. Terms share them through `task.shared`:
-one per body, made in the first term's `__init__`."""
+"""What an arm's terms read besides the robot: a fixed base's frame, the free bodies it
+handles (a cube to lift), as views of the sim's state, and the hand's offset to them. Terms
+share them through `task.shared`: one per body, made in the first term's `__init__`."""
 
 from __future__ import annotations
 
@@ -74,6 +74,24 @@ class Grasp:
             self.contacts().view(-1, self.count, 4)[:, :, 0] > 0).all(dim=1))
 
 
+class SiteToObject:
+    """The vector from a site (an end effector) to an object's origin, world frame `[n, 3]`,
+    once per state: the reach terms and observations of one hand and object share it."""
+
+    def __init__(self, task: RobotTask, site: str, body: str):
+        self.object = free_body(task, body)
+        self.site = sensors.columns(task, [[s.name for s in site_sensors(site)]])
+        self.robot, self.key = task.robot, ("site_to_object", site, body)
+
+    def __call__(self) -> torch.Tensor:
+        return self.robot.per_state(self.key, lambda: self.object.pos - self.site())
+
+
+def site_sensors(site: str) -> list[sensors.Sensor]:
+    """What `SiteToObject` reads of the site: its position."""
+    return [sensors.frame("framepos", "site", site)]
+
+
 def grasp_sensors(body: str, fingers: list[str]) -> list[sensors.Sensor]:
     return [sensors.subtree_contact(finger, body, "body") for finger in fingers]
 
@@ -88,3 +106,7 @@ def free_body(task: RobotTask, body: str) -> FreeBody:
 
 def grasp(task: RobotTask, body: str, fingers: list[str]) -> Grasp:
     return task.shared(("grasp", body, tuple(fingers)), lambda: Grasp(task, body, fingers))
+
+
+def site_to_object(task: RobotTask, site: str, body: str) -> SiteToObject:
+    return task.shared(("site_to_object", site, body), lambda: SiteToObject(task, site, body))

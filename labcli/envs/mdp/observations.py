@@ -144,16 +144,15 @@ class object_position_in_robot_root_frame:  # noqa: N801
 
 class object_from_site:  # noqa: N801
     def __init__(self, task: RobotTask, cfg: c.ObjectFromSite):
-        self.object = objects.free_body(task, cfg.object)
+        self.reach = objects.site_to_object(task, cfg.site, cfg.object)
         self.base = objects.fixed_frame(task, cfg.base_body)
-        self.site = sensors.columns(task, [[s.name for s in self.sensors(task.model, cfg)]])
 
     @staticmethod
     def sensors(model: mujoco.MjModel, cfg: c.ObjectFromSite) -> list[sensors.Sensor]:
-        return [sensors.frame("framepos", "site", cfg.site)]
+        return objects.site_sensors(cfg.site)
 
     def __call__(self) -> torch.Tensor:
-        return math.quat_apply_inverse(self.base.quat, self.object.pos - self.site())
+        return math.quat_apply_inverse(self.base.quat, self.reach())
 
 
 class object_to_target:  # noqa: N801

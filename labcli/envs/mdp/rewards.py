@@ -89,16 +89,14 @@ class orientation_command_error:  # noqa: N801
 
 class object_ee_distance:  # noqa: N801
     def __init__(self, task: RobotTask, cfg: c.ObjectReach):
-        self.object, self.inv_std = objects.free_body(task, cfg.object), 1.0 / cfg.std
-        self.site = sensors.columns(task, [[s.name for s in self.sensors(task.model, cfg)]])
+        self.reach, self.inv_std = objects.site_to_object(task, cfg.site, cfg.object), 1.0 / cfg.std
 
     @staticmethod
     def sensors(model: mujoco.MjModel, cfg: c.ObjectReach) -> list[sensors.Sensor]:
-        return [sensors.frame("framepos", "site", cfg.site)]
+        return objects.site_sensors(cfg.site)
 
     def __call__(self) -> torch.Tensor:
-        distance = torch.linalg.vector_norm(self.object.pos - self.site(), dim=1)
-        return _tanh_kernel(distance, self.inv_std)
+        return _tanh_kernel(torch.linalg.vector_norm(self.reach(), dim=1), self.inv_std)
 
 
 class object_grasped:  # noqa: N801
@@ -164,19 +162,17 @@ def _gaussian_kernel(distance: torch.Tensor, inv_std: float) -> torch.Tensor:
 class staged_position_reward:  # noqa: N801 - a term, named as mjlab's
     def __init__(self, task: RobotTask, cfg: c.ObjectStagedReach):
         self.object, self.command = objects.free_body(task, cfg.object), task.command(cfg.command)
-        self.site = sensors.columns(task, [[s.name for s in self.sensors(task.model, cfg)]])
+        self.reach = objects.site_to_object(task, cfg.site, cfg.object)
         self.inv_reach, self.inv_bring = 1.0 / cfg.reaching_std, 1.0 / cfg.bringing_std
 
     @staticmethod
     def sensors(model: mujoco.MjModel, cfg: c.ObjectStagedReach) -> list[sensors.Sensor]:
-        return [sensors.frame("framepos", "site", cfg.site)]
+        return objects.site_sensors(cfg.site)
 
     def __call__(self) -> torch.Tensor:
-        pos = self.object.pos
-        reach = _gaussian_kernel(torch.linalg.vector_norm(pos - self.site(), dim=1),
-                                 self.inv_reach)
-        bring = _gaussian_kernel(torch.linalg.vector_norm(self.command.target_world() - pos,
-                                                          dim=1), self.inv_bring)
+        reach = _gaussian_kernel(torch.linalg.vector_norm(self.reach(), dim=1), self.inv_reach)
+        bring = _gaussian_kernel(torch.linalg.vector_norm(
+            self.command.target_world() - self.object.pos, dim=1), self.inv_bring)
         return bring.add_(1.0).mul_(reach)
 
 
