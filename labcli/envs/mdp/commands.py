@@ -11,7 +11,7 @@ import torch
 from labcli.envs.markers import Marker
 from labcli.envs.mdp import config as c
 from labcli.envs.mdp import math, names, objects, sensors
-from labcli.envs.mdp.events import Uniform, offset_pose
+from labcli.envs.mdp.events import Uniform, offset_pose, pose_ranges, turns
 from labcli.errors import LabError
 
 if TYPE_CHECKING:
@@ -182,9 +182,9 @@ class UniformPoseCommand:
         # Envs whose object the next step's physics drops anew (`place`).
         self.to_drop = torch.zeros(n, dtype=torch.bool, device=like.device)
         if cfg.place is not None:
-            ranges = [cfg.place.get(k, (0.0, 0.0)) for k in c.POSE_KEYS]
+            ranges = pose_ranges(cfg.place)
             self._drop = Uniform(task, ranges)
-            self._turns = any(lo != 0.0 or hi != 0.0 for lo, hi in ranges[3:])
+            self._turns = turns(ranges)
             self._object = objects.free_body(task, cfg.body)
             self._home = task.robot.default_qpos[:, self._object.qpos]
 

@@ -121,10 +121,7 @@ class UniformPoseCommand(RangeChecked):
             if self.body is None:
                 raise ValueError("place drops the commanded object anew: it needs body (an "
                                  "object with a free joint), not site")
-            unknown = set(self.place) - set(POSE_KEYS)
-            if unknown:
-                raise ValueError(f"place has {sorted(unknown)}; its keys are "
-                                 f"{', '.join(POSE_KEYS)}")
+            check_pose_keys("place", self.place)
         return self
 
     @property
@@ -846,6 +843,12 @@ class ResetJointsByScale(EventTerm):
 POSE_KEYS = ("x", "y", "z", "roll", "pitch", "yaw")
 
 
+def check_pose_keys(field: str, ranges: dict[str, Range]) -> None:
+    unknown = set(ranges) - set(POSE_KEYS)
+    if unknown:
+        raise ValueError(f"{field} has {sorted(unknown)}; its keys are {', '.join(POSE_KEYS)}")
+
+
 class ResetRootUniform(EventTerm):
     """At reset, the root's (or with `body`, a free body's) default pose plus uniform offsets
     per key of `pose_range` (x, y, z in m; roll, pitch, yaw in rad), and velocities drawn from
@@ -861,10 +864,7 @@ class ResetRootUniform(EventTerm):
     @model_validator(mode="after")
     def _known_keys(self) -> ResetRootUniform:
         for field in ("pose_range", "velocity_range"):
-            unknown = set(getattr(self, field)) - set(POSE_KEYS)
-            if unknown:
-                raise ValueError(f"{field} has {sorted(unknown)}; its keys are "
-                                 f"{', '.join(POSE_KEYS)}")
+            check_pose_keys(field, getattr(self, field))
         return self
 
 

@@ -77,11 +77,10 @@ class reset_root_state_uniform:  # noqa: N801
         else:
             body = objects.free_body(task, cfg.body)
             self.pos, self.quat, self.qpos, self.qvel = body.pos, body.quat, body.qpos, body.qvel
-        ranges = [cfg.pose_range.get(k, (0.0, 0.0)) for k in c.POSE_KEYS]
-        ranges += [cfg.velocity_range.get(k, (0.0, 0.0)) for k in c.POSE_KEYS]
+        ranges = pose_ranges(cfg.pose_range) + pose_ranges(cfg.velocity_range)
         self.draw = Uniform(task, ranges)
         self.moves = any(lo != 0.0 or hi != 0.0 for lo, hi in ranges)
-        self.turns = any(lo != 0.0 or hi != 0.0 for lo, hi in ranges[3:6])
+        self.turns = turns(ranges)
 
     def reset(self, mask: torch.Tensor) -> None:
         if not self.moves:
@@ -94,6 +93,16 @@ class reset_root_state_uniform:  # noqa: N801
         # The free joint's angular velocity is in the root's frame.
         root_qvel = self.sim.qvel[:, self.qvel]
         torch.where(m, velocity, root_qvel, out=root_qvel)
+
+
+def pose_ranges(ranges: dict[str, tuple[float, float]]) -> list[tuple[float, float]]:
+    """`ranges` by POSE_KEYS in their order, those left out (0, 0)."""
+    return [ranges.get(k, (0.0, 0.0)) for k in c.POSE_KEYS]
+
+
+def turns(ranges: list[tuple[float, float]]) -> bool:
+    """Whether pose offsets drawn from `ranges` (POSE_KEYS' order) turn the body."""
+    return any(lo != 0.0 or hi != 0.0 for lo, hi in ranges[3:6])
 
 
 def offset_pose(pos: torch.Tensor, quat: torch.Tensor, offset: torch.Tensor,
@@ -111,7 +120,7 @@ class push_by_setting_velocity:  # noqa: N801
     def __init__(self, task: RobotTask, cfg: c.PushByVelocity):
         self.task, self.dt = task, task.step_dt
         self.interval = Uniform(task, [cfg.interval_s])
-        self.push = Uniform(task, [cfg.velocity_range.get(k, (0.0, 0.0)) for k in c.POSE_KEYS])
+        self.push = Uniform(task, pose_ranges(cfg.velocity_range))
         self.time_left = self.interval()[:, 0].clone()
         self.root_qvel = task.sim.qvel[:, task.robot.root_qvel]
 
