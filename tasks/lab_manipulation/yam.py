@@ -39,14 +39,18 @@ def _servo(joint: str, effort: float, speed: float, armature: float, hz: float) 
                      damping=2.0 * DAMPING_RATIO * inertia * omega, frictionloss=0.0)
 
 
-_effort, _speed, _armature = DM4310
+def _through_crank(effort: float, speed: float, armature: float) -> tuple[float, ...]:
+    """A motor's (effort, speed, armature) reflected to the finger's slide (N, m/s, kg), its
+    force cut to mjlab's share."""
+    return GRIPPER_FORCE_SHARE * effort / CRANK, speed * CRANK, armature / CRANK**2
+
+
 ROBOT = RobotDescription(
     base="fixed",
     actuators={
         **{j: _servo(j, *DM4340, ARM_HZ) for j in ("joint1", "joint2", "joint3")},
         **{j: _servo(j, *DM4310, ARM_HZ) for j in ("joint4", "joint5", "joint6")},
-        "gripper": _servo("left_finger", GRIPPER_FORCE_SHARE * _effort / CRANK, _speed * CRANK,
-                          _armature / CRANK**2, GRIPPER_HZ),
+        "gripper": _servo("left_finger", *_through_crank(*DM4310), GRIPPER_HZ),
     },
     # Menagerie's grasp_site lies 4.4 cm beside the finger pads (mjlab moved its own to 1.4 cm
     # from them): the hand's point is the middle of the pads, oriented as grasp_site.

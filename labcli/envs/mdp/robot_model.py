@@ -106,8 +106,7 @@ def _set_collisions(spec: mujoco.MjSpec, model: mujoco.MjModel,
     geoms = spec.geoms  # the compiled model's order, as bodies
     for g in range(model.ngeom):
         body = int(model.geom_bodyid[g])
-        if body not in robot or not (model.geom_contype[g]
-                                                    or model.geom_conaffinity[g]):
+        if body not in robot or not (model.geom_contype[g] or model.geom_conaffinity[g]):
             continue
         body_name = model.body(body).name
         kind = mujoco.mjtGeom(int(model.geom_type[g])).name.removeprefix("mjGEOM_").lower()
