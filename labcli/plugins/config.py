@@ -52,3 +52,26 @@ def mlp_bytes(sizes: list[int]) -> int:
 def too_many_batches(key: str, batches: int, samples: int) -> LabError:
     return LabError(f"{key}={batches} splits {samples:,} samples per iteration into more "
                     "mini-batches than samples", f"use at most {samples:,}, or more envs or steps")
+
+
+# Off-policy learners (SAC, TD3) ------------------------------------------------------------------
+
+def check_replay_size(key: str, transitions: int, num_envs: int) -> None:
+    """A replay memory of `transitions` (over all envs) must hold one step of every env."""
+    if transitions < num_envs:
+        raise LabError(f"{key}={transitions:,} holds less than one step of {num_envs:,} envs",
+                       f"use at least {num_envs:,}")
+
+
+def replay_bytes(transitions: int, observations: int, actions: int, scalars: int) -> int:
+    """A replay memory: observations and next observations, actions and `scalars` more numbers
+    (reward, done, ...) a transition, as floats."""
+    return transitions * (2 * observations + actions + scalars) * FLOAT
+
+
+def twin_critic_bytes(observations: int, hidden: list[int], actions: int,
+                      actor_outputs: int) -> int:
+    """An actor of `actor_outputs` numbers per action and a copy of it, two Q critics and their
+    targets, as `mlp_bytes` counts each (a target has no gradients: a bound from above)."""
+    critic = mlp_bytes([observations + actions, *hidden, 1])
+    return 2 * mlp_bytes([observations, *hidden, actor_outputs * actions]) + 4 * critic

@@ -6,8 +6,15 @@ from typing import ClassVar, Literal
 
 from pydantic import Field, PositiveInt
 
-from labcli.errors import LabError
-from labcli.plugins.config import FLOAT, AgentConfig, mlp_bytes, too_many_batches
+from labcli.plugins.config import (
+    FLOAT,
+    AgentConfig,
+    check_replay_size,
+    mlp_bytes,
+    replay_bytes,
+    too_many_batches,
+    twin_critic_bytes,
+)
 
 
 class SkrlPPOConfig(AgentConfig):
@@ -87,18 +94,15 @@ class OffPolicyConfig(AgentConfig):
     clip_obs: float = Field(5.0, gt=0, description="normalized observations are clipped to ±this")
 
     def check(self, num_envs: int) -> None:
-        if self.buffer_size < num_envs:
-            raise LabError(f"agent.buffer_size={self.buffer_size:,} holds less than one step of "
-                           f"{num_envs:,} envs", f"use at least {num_envs:,}")
+        check_replay_size("agent.buffer_size", self.buffer_size, num_envs)
 
     def memory(self, num_envs: int, observations: int, actions: int) -> dict[str, int]:
-        # The replay memory: observations and next observations, actions, reward and
-        # termination a transition; the actor, two critics and their targets.
-        critic = mlp_bytes([observations + actions, *self.hidden_sizes, 1])
+        # The replay memory holds a reward and a termination besides the observations and
+        # actions of a transition.
         return {
-            "agent.buffer_size": self.buffer_size * (2 * observations + actions + 2) * FLOAT,
-            "agent.hidden_sizes": 2 * mlp_bytes([observations, *self.hidden_sizes,
-                                                 self.actor_outputs * actions]) + 4 * critic,
+            "agent.buffer_size": replay_bytes(self.buffer_size, observations, actions, 2),
+            "agent.hidden_sizes": twin_critic_bytes(observations, self.hidden_sizes, actions,
+                                                    self.actor_outputs),
         }
 
 
