@@ -39,6 +39,8 @@ NUM_ENVS = 4
 SHORT_EPISODE = "env.episode_length_s=0.1"
 # The built-in frameworks at the smallest sizes that still run every code path: a few seconds of
 # training for tests that exercise the machinery around learning, not the learning.
+SB3_OFF_POLICY = ["agent.train_freq=8", "agent.gradient_steps=4", "agent.batch_size=16",
+                  "agent.learning_starts=16", "agent.buffer_size=256", "agent.net_arch=[16]"]
 SMALL_AGENTS = {
     # VecNormalize on, whatever the task's default: its statistics are what checkpoints, resume
     # and export most easily get wrong.
@@ -54,6 +56,9 @@ SMALL_AGENTS = {
                  "agent.buffer_size=256", "agent.hidden_sizes=[16]"],
     "skrl_td3": ["agent.rollouts=8", "agent.batch_size=16", "agent.learning_starts=4",
                  "agent.buffer_size=256", "agent.hidden_sizes=[16]"],
+    # SB3 counts learning_starts in steps of all envs: updates from the first iteration's end.
+    "sb3_sac": SB3_OFF_POLICY,
+    "sb3_td3": SB3_OFF_POLICY,
     "rl_games": ["agent.horizon_length=8", "agent.mini_epochs=2",
                  "agent.minibatch_size_per_env=4", "agent.units=[16]"],
 }

@@ -20,7 +20,7 @@ from labcli.plugins.hookspecs import hookimpl
 from labcli.plugins.policy import Policy
 from labcli.runs import training
 
-FRAMEWORKS = ["sb3", "rsl_rl", "skrl", "skrl_sac", "skrl_td3", "rl_games"]
+FRAMEWORKS = ["sb3", "sb3_sac", "sb3_td3", "rsl_rl", "skrl", "skrl_sac", "skrl_td3", "rl_games"]
 
 # Tiny agents: 8 steps per env per iteration, two small epochs, 16-unit networks.
 SMALL = testing.SMALL_AGENTS
@@ -50,8 +50,9 @@ def _probe_rl_games(env, actions: torch.Tensor) -> testing.ProbeStep:
     return testing.ProbeStep(obs, reward, dones.bool() & ~truncated, truncated)
 
 
-PROBES = {"sb3": _probe_sb3, "rsl_rl": _probe_rsl_rl, "skrl": _probe_skrl,
-          "skrl_sac": _probe_skrl, "skrl_td3": _probe_skrl, "rl_games": _probe_rl_games}
+PROBES = {"sb3": _probe_sb3, "sb3_sac": _probe_sb3, "sb3_td3": _probe_sb3,
+          "rsl_rl": _probe_rsl_rl, "skrl": _probe_skrl, "skrl_sac": _probe_skrl,
+          "skrl_td3": _probe_skrl, "rl_games": _probe_rl_games}
 
 
 @pytest.mark.parametrize("name", FRAMEWORKS)

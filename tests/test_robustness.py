@@ -68,7 +68,8 @@ def fresh_copy(run_dir: Path, tmp_path: Path) -> tuple[Path, Path]:
 
 
 # Resume: all or nothing -----------------------------------------------------------------------
-REFUSED = {"sb3": "agent.net_arch=[8]", "rsl_rl": "agent.actor_hidden_dims=[8]",
+REFUSED = {"sb3": "agent.net_arch=[8]", "sb3_sac": "agent.net_arch=[8]",
+           "sb3_td3": "agent.net_arch=[8]", "rsl_rl": "agent.actor_hidden_dims=[8]",
            "skrl": "agent.hidden_sizes=[8]", "skrl_sac": "agent.hidden_sizes=[8]",
            "skrl_td3": "agent.hidden_sizes=[8]", "rl_games": "agent.units=[8]"}
 
@@ -88,8 +89,9 @@ def test_a_refused_resume_writes_nothing_and_the_run_resumes_after(framework, tr
 
 def saved_learning_rate(framework: str, checkpoint: Path) -> float:
     """The learning rate in a checkpoint's optimizer state."""
-    if framework == "sb3":
-        with zipfile.ZipFile(checkpoint) as archive, archive.open("policy.optimizer.pth") as f:
+    if framework.startswith("sb3"):  # SAC and TD3 save their actor's optimizer apart
+        member = "policy.optimizer.pth" if framework == "sb3" else "actor.optimizer.pth"
+        with zipfile.ZipFile(checkpoint) as archive, archive.open(member) as f:
             state = torch.load(f, weights_only=True)
     else:
         key = {"rsl_rl": "optimizer_state_dict", "skrl": "optimizer",

@@ -58,6 +58,8 @@ def test_exploding_envs_are_reset_counted_and_keep_nan_from_the_learner(name, tm
 
 UPDATES = {
     "sb3": ("stable_baselines3.ppo.ppo", "PPO", "train"),
+    "sb3_sac": ("stable_baselines3.sac.sac", "SAC", "train"),
+    "sb3_td3": ("stable_baselines3.td3.td3", "TD3", "train"),
     "rsl_rl": ("rsl_rl.algorithms.ppo", "PPO", "update"),
     "skrl": ("skrl.agents.torch.ppo.ppo", "PPO", "update"),
     # An iteration's updates, one after each of its steps' transitions.
@@ -103,6 +105,7 @@ def poison_update(monkeypatch, name: str, on_call: int) -> None:
             monkeypatch.setattr(torch.optim.Adam, "step", step)
         # ... and after it, for a library whose optimizer steps another way (skrl).
         fill_nan(getattr(self, "optimizer", None) or getattr(self, "policy_optimizer", None)
+                 or getattr(getattr(self, "actor", None), "optimizer", None)
                  or self.policy.optimizer)
         return out
 

@@ -20,7 +20,7 @@ from stable_baselines3.common.type_aliases import RolloutBufferSamples
 from stable_baselines3.common.vec_env.base_vec_env import VecEnv, VecEnvWrapper
 from torch.distributions import Distribution
 
-from labcli.plugins.policy import torch_threads
+from lab_sb3.algorithm import LabAlgorithm
 
 # torch checks a distribution's parameters when it is made, which on a GPU waits for the device
 # (SB3 makes one each rollout step and each mini-batch). skrl turns it off at import, RSL-RL
@@ -132,33 +132,9 @@ class TimeoutBootstrap(VecEnvWrapper):
         return obs, rewards, dones, infos
 
 
-class LabPPO(PPO):
-    """SB3's PPO, reading only the ended envs' infos for its episode buffers (SB3 reads every
-    env's every step; lab's adapter puts figures in the ended envs' infos only), bootstrapping
-    time-outs in one batch a step (`TimeoutBootstrap`), and updating on `update_threads` torch
-    threads on the CPU."""
-
-    update_threads = 1  # the run's TrainContext.update_threads, set by lab's framework
+class LabPPO(LabAlgorithm, PPO):
+    """SB3's PPO (with lab_sb3.algorithm's changes), bootstrapping time-outs in one batch a
+    step (`TimeoutBootstrap`)."""
 
     def collect_rollouts(self, env: VecEnv, *args: Any, **kwargs: Any) -> bool:
         return super().collect_rollouts(TimeoutBootstrap(env, self), *args, **kwargs)
-
-    def train(self) -> None:
-        with torch_threads(str(self.device), self.update_threads):
-            super().train()
-
-    def _update_info_buffer(self, infos: list[dict[str, Any]],
-                            dones: np.ndarray | None = None) -> None:
-        if dones is None:
-            super()._update_info_buffer(infos, dones)
-            return
-        ended = np.flatnonzero(dones)
-        super()._update_info_buffer([infos[i] for i in ended], np.ones(len(ended), dtype=bool))
-
-    def _excluded_save_params(self) -> list[str]:
-        # The buffer's class is a choice of this process, not the model's: a zip without it
-        # loads with plain `PPO.load`, and without lab installed. The last observations are the
-        # env's, which a resumed run restores itself (SB3 resets its env when they are missing):
-        # SB3 pickles and prints them into the zip's JSON, 40 of a save's 50 ms at 4,096 envs.
-        return [*super()._excluded_save_params(), "rollout_buffer_class", "rollout_buffer_kwargs",
-                "update_threads", "_last_obs", "_last_episode_starts", "_last_original_obs"]
