@@ -129,7 +129,7 @@ BAD = {
     "unknown task": (["train", "--task", "cartpol", "--framework", "sb3"],
                      ["unknown task 'cartpol'", "did you mean 'cartpole'", "cartpole"]),
     "unknown framework": (["train", "--task", "cartpole", "--framework", "sb4"],
-                          ["unknown framework 'sb4'", "rsl_rl, sb3, skrl"]),
+                          ["unknown framework 'sb4'", "rsl_rl, sb3, sb3_sac, sb3_td3, skrl"]),
     "unknown --set key": (["train", "--task", "cartpole", "--framework", "sb3", "--set",
                            "agent.learning_rat=1"], ["agent.learning_rat", "agent.learning_rate"]),
     "ill-typed --set": (["train", "--task", "cartpole", "--framework", "sb3", "--set",

@@ -55,7 +55,7 @@ def test_every_command_and_group_has_an_example_in_its_help(command):
 
 @pytest.mark.parametrize("words, expected", [
     ("lab train --task car", "cartpole\n"),
-    ("lab train --framework s", "sb3\nskrl\n"),
+    ("lab train --framework s", "sb3\nsb3_sac\nsb3_td3\nskrl\nskrl_sac\nskrl_td3\n"),
     ("lab play --task gym:InvertedPendulum-v", "gym:InvertedPendulum-v5"),
 ])
 def test_shell_completion_offers_registered_names(words, expected):
