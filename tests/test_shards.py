@@ -40,14 +40,15 @@ def build(task: str, num_envs: int, shards: int | None = None, **cfg) -> LabVecE
 
 def trajectory(env, steps: int, seed: int = 5) -> list[torch.Tensor]:
     """Every output of a reset and `steps` steps of seeded random actions, flattened."""
-    obs, _ = env.reset(seed=seed)
+    obs, info = env.reset(seed=seed)
     gen = torch.Generator().manual_seed(seed)
-    out = [obs]
+    out = [obs, *info.values()]
     for _ in range(steps):
         action = torch.rand(env.action_space.shape, generator=gen) * 2 - 1
         obs, reward, terminated, truncated, info = env.step(action)
         out += [obs, reward, terminated, truncated, info["terminations"], info[f"_{EPISODE}"],
-                *info[EPISODE].values(), *([info["final_obs"]] if "final_obs" in info else [])]
+                *info[EPISODE].values(),
+                *(info[key] for key in ("final_obs", "critic_obs") if key in info)]
     return out
 
 
@@ -61,9 +62,10 @@ def assert_same(a: list[torch.Tensor], b: list[torch.Tensor]) -> None:
     ("cartpole", 128, "same_step", 400, {}),  # episodes end and reset in every shard
     ("cartpole", 128, "next_step", 200, {}),
     # Draws every step (observation noise, pushes) and on resets: time-outs every 15 steps;
-    # each physics step's own control (a motor's latency).
+    # each physics step's own control (a motor's latency); the critic's observations.
     pytest.param("go1-flat", 64, "same_step", 40,
-                 {"episode_length_s": 0.3, "actions": {"scale": 0.25, "delay": (1, 7)}},
+                 {"episode_length_s": 0.3, "actions": {"scale": 0.25, "delay": (1, 7)},
+                  "critic_observations": "noise_free"},
                  marks=needs_menagerie("unitree_go1")),
 ])
 def test_shards_give_the_outputs_of_one_env(task, num_envs, mode, steps, cfg):

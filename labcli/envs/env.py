@@ -86,6 +86,10 @@ class LabVecEnv(gym.vector.VectorEnv):
                                                   (len(self.action_names),), np.float32)
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
         self.action_space = batch_space(self.single_action_space, self.num_envs)
+        # The critic's own observations (`info["critic_obs"]` at each step and reset), of a
+        # task that gives them: their width, 0 without.
+        critic = self.task.critic_observations()
+        self.critic_observation_size = 0 if critic is None else critic.shape[1]
 
         reward_weights = cfg.weights(self.step_dt)
         self.reward_names = list(reward_weights)
@@ -186,7 +190,14 @@ class LabVecEnv(gym.vector.VectorEnv):
             self._stats.zero_()
         else:  # gymnasium's way to reset some envs only
             self._reset_envs(mask)
-        return self.observations(), {}
+        return self.observations(), self.critic_info()
+
+    def critic_info(self, out: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
+        """`{"critic_obs": ...}` of the state observed last (in `out`, if given); {} for a
+        task without them."""
+        if not self.critic_observation_size:
+            return {}
+        return {"critic_obs": _observed(self.task.critic_observations(), out)}
 
     def one_seed(self, seed: int | Sequence[int]) -> int:
         """All envs share one seed: a list of seeds, one per env (as gymnasium's
@@ -249,7 +260,9 @@ class LabVecEnv(gym.vector.VectorEnv):
             "reward": torch.zeros(n, device=dev), "r": torch.zeros(n, device=dev),
             "l": torch.zeros(n, dtype=torch.long, device=dev), **bools,
             "terminations": torch.zeros(n, len(self.termination_names), dtype=torch.bool,
-                                        device=dev)}.items()})
+                                        device=dev),
+            **({"critic_obs": torch.zeros(n, self.critic_observation_size, device=dev)}
+               if self.critic_observation_size else {})}.items()})
 
     def returned(self, out: StepOutputs) -> tuple:
         """What `step` returns, of a step's outputs written into `out`."""
@@ -257,6 +270,8 @@ class LabVecEnv(gym.vector.VectorEnv):
                 f"_{EPISODE}": out.done, "terminations": out.terminations}
         if self.autoreset_mode is AutoresetMode.SAME_STEP:
             info["final_obs"], info["_final_obs"] = out.final_obs, out.done
+        if out.critic_obs is not None:
+            info["critic_obs"] = out.critic_obs
         return out.obs, out.reward, out.terminated, out.truncated, info
 
     def close_extras(self, **kwargs: Any) -> None:
@@ -336,13 +351,15 @@ class LabVecEnv(gym.vector.VectorEnv):
         if next_step:
             self._reset_envs(self._pending)
             self._pending.copy_(done)
-            return self.observations(o.obs), reward, terminated_any, truncated, info
+            obs = self.observations(o.obs)
+            return obs, reward, terminated_any, truncated, info | self.critic_info(o.critic_obs)
         final_obs = info["final_obs"] = self.observations(o.final_obs)
         info["_final_obs"] = done
         # With no env reset the state is unchanged: a copy, not the task's terms again.
         obs = (self.observations(o.obs) if ended and self._reset_envs(done)
                else _copy(final_obs, o.obs))
-        return obs, reward, terminated_any, truncated, info
+        # The critic's, as the task observed it last: the state `obs` is of.
+        return obs, reward, terminated_any, truncated, info | self.critic_info(o.critic_obs)
 
     def _safe_actions(self, actions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None]:
         """The actions clipped, non-finite ones as 0; and the envs that had one (None: none)."""
@@ -572,10 +589,7 @@ class LabVecEnv(gym.vector.VectorEnv):
     def observations(self, out: torch.Tensor | None = None) -> torch.Tensor:
         """The current observations: what the last step or reset returned (in `out`, if given:
         the cast is the copy into it)."""
-        obs = self.task.observations()
-        if out is None:
-            return obs.to(torch.float32).nan_to_num(0.0, 0.0, 0.0)
-        return out.copy_(obs).nan_to_num_(0.0, 0.0, 0.0)
+        return _observed(self.task.observations(), out)
 
 
 @dataclass(frozen=True)
@@ -592,9 +606,18 @@ class StepOutputs:
     l: torch.Tensor | None = None  # noqa: E741 - gymnasium's episode length key
     success: torch.Tensor | None = None
     terminations: torch.Tensor | None = None
+    critic_obs: torch.Tensor | None = None  # a task's critic observations, where it has them
 
 
 _NEW_OUTPUTS = StepOutputs()
+
+
+def _observed(obs: torch.Tensor, out: torch.Tensor | None) -> torch.Tensor:
+    """Observations as a step returns them: float32, NaN and infinities as 0 (into `out`, if
+    given: the cast is the copy into it)."""
+    if out is None:
+        return obs.to(torch.float32).nan_to_num(0.0, 0.0, 0.0)
+    return out.copy_(obs).nan_to_num_(0.0, 0.0, 0.0)
 
 
 def _copy(value: torch.Tensor, out: torch.Tensor | None) -> torch.Tensor:

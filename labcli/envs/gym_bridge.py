@@ -52,6 +52,7 @@ class GymVecEnv(gym.vector.VectorEnv):
         n_act = space.shape[0]
         self.observation_names = [f"obs_{i}" for i in range(n_obs)]
         self.action_names = [f"action_{i}" for i in range(n_act)]
+        self.critic_observation_size = 0  # a gymnasium env has no critic observations
         self.single_observation_space = gym.spaces.Box(-np.inf, np.inf, (n_obs,), np.float32)
         self.clip_actions = 1.0  # the policy's [-1, 1] spans the gymnasium env's bounds
         self.single_action_space = gym.spaces.Box(-1.0, 1.0, (n_act,), np.float32)

@@ -101,7 +101,8 @@ def _layout(num_envs: int, count: int) -> list[_Shard]:
 def _buffers(env: LabVecEnv, num_envs: int, count: int) -> dict[str, torch.Tensor]:
     """The tensors the processes share: the actions in, every output of a step out."""
     outputs = env.new_outputs(num_envs, shared)
-    return {f.name: getattr(outputs, f.name) for f in fields(StepOutputs)} | {
+    return {f.name: getattr(outputs, f.name) for f in fields(StepOutputs)
+            if getattr(outputs, f.name) is not None} | {
         name: shared(tensor) for name, tensor in {
             "actions": torch.zeros(num_envs, env.single_action_space.shape[0]),
             "stats": torch.zeros(count, env.stats_size, dtype=torch.float64),
@@ -222,7 +223,8 @@ class _ShardEnd:
         env.keep_stats_in(buffers["stats"][index])
         # Views made once: slicing each buffer on every step costs as much as copying into it.
         self.actions = buffers["actions"][rows]
-        self.outputs = StepOutputs(**{f.name: buffers[f.name][rows] for f in fields(StepOutputs)})
+        self.outputs = StepOutputs(**{f.name: buffers[f.name][rows] for f in fields(StepOutputs)
+                                      if f.name in buffers})
         self.obs = self.outputs.obs
 
     @torch.inference_mode()
@@ -241,9 +243,11 @@ class _ShardEnd:
         options = None if mask is None else {"reset_mask": mask}
         obs, _ = self.env.reset(seed=seed, options=options)
         self.obs.copy_(obs)
+        self.env.critic_info(self.outputs.critic_obs)
 
     def observations(self) -> None:
         self.obs.copy_(self.env.observations())
+        self.env.critic_info(self.outputs.critic_obs)
 
     def get_state(self) -> dict[str, torch.Tensor]:
         return self.env.get_state()
@@ -407,9 +411,9 @@ class ShardedVecEnv(gym.vector.VectorEnv):
         """All but shard 0's env: the whole env's spaces, the shared buffers, the workers."""
         local, n, first = self._local, self.num_envs, self._shards[0]
         for name in ("metadata", "step_dt", "max_episode_length", "observation_names",
-                     "action_names", "single_observation_space", "single_action_space",
-                     "clip_actions", "reward_names", "termination_names", "metric_names",
-                     "sim", "task"):
+                     "critic_observation_size", "action_names", "single_observation_space",
+                     "single_action_space", "clip_actions", "reward_names", "termination_names",
+                     "metric_names", "sim", "task"):
             setattr(self, name, getattr(local, name))
         self.observation_space = gym.vector.utils.batch_space(self.single_observation_space, n)
         self.action_space = gym.vector.utils.batch_space(self.single_action_space, n)
@@ -445,7 +449,13 @@ class ShardedVecEnv(gym.vector.VectorEnv):
                               for shard, part in zip(self._shards, parts, strict=True)))
         if mask is None:
             self._buffers["stats"].zero_()
-        return self._buffers["obs"].clone(), {}
+        return self._buffers["obs"].clone(), self._critic_info()
+
+    def _critic_info(self) -> dict[str, torch.Tensor]:
+        """The shards' critic observations of the last reset or observation, as LabVecEnv's
+        `critic_info`."""
+        critic = self._buffers.get("critic_obs")
+        return {} if critic is None else {"critic_obs": critic.clone()}
 
     def step(self, actions: torch.Tensor):
         if self.closed:
@@ -460,7 +470,7 @@ class ShardedVecEnv(gym.vector.VectorEnv):
         with compiling_notice() if first else contextlib.nullcontext():
             self._step_shards(local_first=first)
         return self._local.returned(StepOutputs(**{f.name: b[f.name].clone()
-                                                   for f in fields(StepOutputs)}))
+                                                   for f in fields(StepOutputs) if f.name in b}))
 
     def _step_shards(self, local_first: bool) -> None:
         """Every shard's step, the workers' released before or after this process's own."""

@@ -110,6 +110,13 @@ class Task:
     def observations(self) -> torch.Tensor:
         raise NotImplementedError
 
+    def critic_observations(self) -> torch.Tensor | None:
+        """The critic's own observations `[num_envs, k]`, of the state the last
+        `observations()` call observed (a tensor kept and rewritten by each call), for the
+        learners that read them (an actor-critic's privileged, noise-free inputs); None: the
+        critic reads the policy's observations. The default: None."""
+        return None
+
     def reward_terms(self) -> dict[str, torch.Tensor]:
         """Unweighted reward terms by name; the weights come from `cfg.reward_weights`."""
         raise NotImplementedError

@@ -1157,6 +1157,11 @@ class RobotTaskConfig(TaskConfig):
     curriculum: Group = Group()
     observation_noise: bool = Field(True, description="add each observation term's noise "
                                     "(training; lab play sets it false unless asked)")
+    critic_observations: Literal["policy", "noise_free"] = Field(
+        "policy", description="what an actor-critic learner's critic reads: the policy's "
+        "observations, or the same terms without their noise, bias and delay (the critic group "
+        "of mjlab and Isaac Lab, corruption off; a framework without a critic input of its own "
+        "trains its critic on the policy's, and says so)")
     success: Term | None = None
     rewards_per_second: bool = Field(False, description="weights are per second of the "
                                      "episode: times the env step's duration in each step "

@@ -225,6 +225,11 @@ class RobotTask(Task):
         if self._frames is not None:
             self._term_resets.append(self._frames.reset)
             self._carriers.append(("observations/frames", self._frames))
+        self._critic = (CriticObservations(self, terms, self._obs_widths)
+                        if cfg.critic_observations == "noise_free" else None)
+        if self._critic is not None and self._critic.frames is not None:
+            self._term_resets.append(self._critic.frames.reset)
+            self._carriers.append(("critic_observations/frames", self._critic.frames))
 
     # the env's calls ---------------------------------------------------------------------------
     def apply_actions(self, actions: torch.Tensor) -> None:
@@ -236,6 +241,8 @@ class RobotTask(Task):
         self.action.copy_(actions)
         if self._frames is not None:
             self._frames.advance()
+        if self._critic is not None and self._critic.frames is not None:
+            self._critic.frames.advance()
         for hook in self._pre_physics:
             hook()
         self.actuation(self.action, self.targets)
@@ -258,9 +265,14 @@ class RobotTask(Task):
         self.robot.update()
 
     def observations(self) -> torch.Tensor:
-        frame = self._post(torch.cat([b.compute() for b in self._obs], dim=1,
-                                     out=self._post.raw))
+        raw = torch.cat([b.compute() for b in self._obs], dim=1, out=self._post.raw)
+        if self._critic is not None:  # before the policy's corruption, which works in place
+            self._critic(raw)
+        frame = self._post(raw)
         return frame if self._frames is None else self._frames(frame)
+
+    def critic_observations(self) -> torch.Tensor | None:
+        return None if self._critic is None else self._critic.value
 
     def reward_terms(self) -> dict[str, torch.Tensor]:
         return {b.name: b.compute() for b in self._rewards}
@@ -399,6 +411,25 @@ class RobotTask(Task):
         if width == 3:
             return [f"{built.name}.{axis}" for axis in AXES]
         return [f"{built.name}[{i}]" for i in range(width)]
+
+
+class CriticObservations:
+    """The policy's observation terms as the critic reads them (`critic_observations:
+    noise_free`): each term's value without the policy's noise, bias and delay, clipped, scaled
+    and framed as the policy's, in the same columns (so a mirror of the policy's observations
+    mirrors them too). `value` is the last state's, a tensor each call rewrites."""
+
+    def __init__(self, task: RobotTask, terms: list[Any], widths: list[int]):
+        clean = [t.model_copy(update={"noise": 0.0, "bias": 0.0, "delay": (0, 0)})
+                 for t in terms]
+        self.post = ObservationPost(task, clean, widths)
+        self.frames = (frames.ObservationFrames(task, clean, widths)
+                       if any(t.frames > 1 for t in clean) else None)
+        self.value = self.post.raw if self.frames is None else self.frames.out
+
+    def __call__(self, raw: torch.Tensor) -> None:
+        frame = self.post(self.post.raw.copy_(raw))
+        self.value = frame if self.frames is None else self.frames(frame)
 
 
 class ObservationPost:
