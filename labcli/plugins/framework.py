@@ -73,6 +73,9 @@ class FrameworkSpec:
     # Trains on several ranks (torchrun, `lab train --nproc`): the library averages gradients
     # over torch.distributed's default group and keeps its normalizers equal on every rank.
     data_parallel: bool = False
+    # Its critic reads a task's own critic observations (`info["critic_obs"]` of the env's reset
+    # and steps) where the task gives them; without, lab says the critic reads the policy's.
+    critic_observations: bool = False
 
     @functools.cached_property
     def agent_config_class(self) -> type:

@@ -13,8 +13,9 @@ import torch
 from rsl_rl.env import VecEnv
 from tensordict import TensorDict
 
-# The observation group the actor and critic read (RSL-RL's `obs_groups` name it).
-OBS_GROUP = "policy"
+# The observation group the actor reads, and the critic where the task gives no critic group of
+# its own (RSL-RL's `obs_groups` name them).
+OBS_GROUP, CRITIC_GROUP = "policy", "critic"
 
 
 class RslRlVecEnv(VecEnv):
@@ -28,13 +29,18 @@ class RslRlVecEnv(VecEnv):
         # The runner writes this only for `init_at_random_ep_len`, which lab does not use.
         self.episode_length_buf = base.episode_length
         self.cfg = base.cfg
-        self._obs, _ = env.reset()
+        self._obs, info = env.reset()
+        self._critic = info.get("critic_obs")  # a task's critic observations, where it has them
 
     def get_observations(self) -> TensorDict:
-        return TensorDict({OBS_GROUP: self._obs}, batch_size=[self.num_envs], device=self.device)
+        groups = {OBS_GROUP: self._obs}
+        if self._critic is not None:
+            groups[CRITIC_GROUP] = self._critic
+        return TensorDict(groups, batch_size=[self.num_envs], device=self.device)
 
     def step(self, actions: torch.Tensor) -> tuple[TensorDict, torch.Tensor, torch.Tensor, dict]:
-        self._obs, reward, terminated, truncated, _ = self.env.step(actions)
+        self._obs, reward, terminated, truncated, info = self.env.step(actions)
+        self._critic = info.get("critic_obs")
         # Same-step autoreset: `_obs` already holds the first observation of the next episode.
         extras = {"time_outs": truncated}
         return self.get_observations(), reward, terminated | truncated, extras

@@ -14,7 +14,7 @@ from rsl_rl.runners import OnPolicyRunner
 from tensordict import TensorDict
 from torch import nn
 
-from lab_rsl_rl.adapter import OBS_GROUP, RslRlVecEnv
+from lab_rsl_rl.adapter import CRITIC_GROUP, OBS_GROUP, RslRlVecEnv
 from lab_rsl_rl.config import RslRlPpoConfig
 from labcli.envs.mdp.symmetry import Mirror, mirror_of_env
 from labcli.errors import LabError, first_line
@@ -34,16 +34,17 @@ INFO_KEYS = {"observation_size", "action_size", "actor"}
 MODEL, DISTRIBUTION = "MLPModel", "GaussianDistribution"  # the classes this plugin writes
 
 
-def runner_config(cfg: RslRlPpoConfig, world_size: int = 1) -> dict[str, Any]:
+def runner_config(cfg: RslRlPpoConfig, world_size: int = 1,
+                  critic_group: str = OBS_GROUP) -> dict[str, Any]:
     """The OnPolicyRunner config dict (5.x schema: `actor`, `critic`, `algorithm`, `obs_groups`)
-    for a run of `world_size` data-parallel ranks."""
+    for a run of `world_size` data-parallel ranks whose critic reads `critic_group`."""
     norm = cfg.empirical_normalization
     return {
         "num_steps_per_env": cfg.num_steps_per_env,
         # The runner saves by itself only through its own log writer, which lab does not create
         # (see _LabLogger), so this never bypasses lab's atomic save.
         "save_interval": cfg.save_interval,
-        "obs_groups": {"actor": [OBS_GROUP], "critic": [OBS_GROUP]},
+        "obs_groups": {"actor": [OBS_GROUP], "critic": [critic_group]},
         # lab's env already replaces non-finite observations; the check costs a sync per step.
         "check_for_nan": False,
         "actor": {
@@ -139,7 +140,9 @@ class LabRunner(OnPolicyRunner):
 
     def __init__(self, env: RslRlVecEnv, cfg: RslRlPpoConfig, ctx: TrainContext):
         self._ranks = ctx.rank, ctx.world_size  # for _configure_multi_gpu, called by __init__
-        config = runner_config(cfg, ctx.world_size)
+        groups = env.get_observations().keys()
+        config = runner_config(cfg, ctx.world_size,
+                               CRITIC_GROUP if CRITIC_GROUP in groups else OBS_GROUP)
         config["algorithm"]["symmetry_cfg"] = symmetry_config(cfg, env)
         with contextlib.redirect_stdout(io.StringIO()):  # it prints both models; lab has a bar
             super().__init__(env, config, log_dir=str(ctx.run_dir), device=ctx.device)

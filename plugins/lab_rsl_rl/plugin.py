@@ -12,7 +12,7 @@ ADAPTER = WrapperSpec(
 SPEC = FrameworkSpec(
     name="rsl_rl", framework="lab_rsl_rl.framework:RslRlFramework",
     agent_config="lab_rsl_rl.config:RslRlPpoConfig",
-    wrappers=(ADAPTER,), library="rsl-rl-lib", data_parallel=True,
+    wrappers=(ADAPTER,), library="rsl-rl-lib", data_parallel=True, critic_observations=True,
     description="RSL-RL PPO (torch end to end; empirical observation normalization)")
 
 
