@@ -243,6 +243,8 @@ class YamLiftConfig(c.RobotTaskConfig):
     clip_actions: float = 100.0
     commands: YamLiftCommands = YamLiftCommands()
     observations: YamLiftObservations = YamLiftObservations()
+    # mjlab's critic group: the actor's terms without their noise.
+    critic_observations: Literal["policy", "noise_free"] = "noise_free"
     rewards: YamLiftRewards = YamLiftRewards()
     terminations: YamLiftTerminations = YamLiftTerminations()
     events: YamLiftEvents = YamLiftEvents()
