@@ -161,8 +161,13 @@ class LabVecEnv(gym.vector.VectorEnv):
         # On the CPU the step's torch code is traced and compiled on request, in two parts: the
         # physics between them is MuJoCo's.
         what = f"the env step of task '{spec.name}'"
+        # The outputs the compiled part writes: tensors all (a task without critic
+        # observations has none to pass).
+        self._written = tuple(f.name for f in fields(StepOutputs)
+                              if f.name != "critic_obs" or self.critic_observation_size)
         self._compiled = ((CompiledStep(self._act, what, self.rng), CompiledStep(
-            lambda *out: self._settle(StepOutputs(*out), self._bad_action), what, self.rng))
+            lambda *out: self._settle(StepOutputs(**dict(zip(self._written, out, strict=True))),
+                                      self._bad_action), what, self.rng))
             if self.device.type == "cpu" and cfg.compile else None)
 
     @property
@@ -294,7 +299,7 @@ class LabVecEnv(gym.vector.VectorEnv):
         act, settle = self._compiled
         act(actions.contiguous())  # compiled for a contiguous input
         self.sim.step(self.cfg.decimation, self.task.controls, self.task.substep)
-        settle(*(getattr(out, f.name) for f in fields(StepOutputs)))
+        settle(*(getattr(out, name) for name in self._written))
 
     def _act(self, actions: torch.Tensor) -> torch.Tensor | None:
         """The step before the physics: the actions made safe and turned into controls. The
