@@ -5,6 +5,7 @@ and the framework's library; `labcli/runs/training.py` has planned and announced
 from __future__ import annotations
 
 import contextlib
+import errno
 import math
 import shlex
 import sys
@@ -387,6 +388,9 @@ def _run_training(fw: Framework, env: Any, cfg: AgentConfig, run: rundir.Run,
         # keeps its traceback.
         if (deleted := files.deletion(exc, run.dir)) is not None:
             error = deleted
+        elif isinstance(exc, OSError) and exc.errno in (errno.ENOSPC, errno.EDQUOT):
+            # TensorBoard's writer or a library's own, on a full disk: its checkpoints stand.
+            error = files.unwritable(run.dir, exc)
         elif ranks.active and distributed.lost_peer(exc):
             error = distributed.lost(ranks, exc, ctx.iteration)
         elif ctx.networks_finite():
