@@ -164,7 +164,7 @@ class LabVecEnv(gym.vector.VectorEnv):
         # The outputs the compiled part writes: tensors all (a task without critic
         # observations has none to pass).
         self._written = tuple(f.name for f in fields(StepOutputs)
-                              if f.name != "critic_obs" or self.critic_observation_size)
+                              if f.name not in CRITIC_OUTPUTS or self.critic_observation_size)
         self._compiled = ((CompiledStep(self._act, what, self.rng), CompiledStep(
             lambda *out: self._settle(StepOutputs(**dict(zip(self._written, out, strict=True))),
                                       self._bad_action), what, self.rng))
@@ -266,8 +266,8 @@ class LabVecEnv(gym.vector.VectorEnv):
             "l": torch.zeros(n, dtype=torch.long, device=dev), **bools,
             "terminations": torch.zeros(n, len(self.termination_names), dtype=torch.bool,
                                         device=dev),
-            **({"critic_obs": torch.zeros(n, self.critic_observation_size, device=dev)}
-               if self.critic_observation_size else {})}.items()})
+            **({name: torch.zeros(n, self.critic_observation_size, device=dev)
+                for name in CRITIC_OUTPUTS} if self.critic_observation_size else {})}.items()})
 
     def returned(self, out: StepOutputs) -> tuple:
         """What `step` returns, of a step's outputs written into `out`."""
@@ -277,6 +277,8 @@ class LabVecEnv(gym.vector.VectorEnv):
             info["final_obs"], info["_final_obs"] = out.final_obs, out.done
         if out.critic_obs is not None:
             info["critic_obs"] = out.critic_obs
+            if self.autoreset_mode is AutoresetMode.SAME_STEP:
+                info["final_critic_obs"] = out.final_critic_obs
         return out.obs, out.reward, out.terminated, out.truncated, info
 
     def close_extras(self, **kwargs: Any) -> None:
@@ -360,6 +362,8 @@ class LabVecEnv(gym.vector.VectorEnv):
             return obs, reward, terminated_any, truncated, info | self.critic_info(o.critic_obs)
         final_obs = info["final_obs"] = self.observations(o.final_obs)
         info["_final_obs"] = done
+        if self.critic_observation_size:  # the critic's of the same last state
+            info["final_critic_obs"] = self.critic_info(o.final_critic_obs)["critic_obs"]
         # With no env reset the state is unchanged: a copy, not the task's terms again.
         obs = (self.observations(o.obs) if ended and self._reset_envs(done)
                else _copy(final_obs, o.obs))
@@ -611,7 +615,12 @@ class StepOutputs:
     l: torch.Tensor | None = None  # noqa: E741 - gymnasium's episode length key
     success: torch.Tensor | None = None
     terminations: torch.Tensor | None = None
-    critic_obs: torch.Tensor | None = None  # a task's critic observations, where it has them
+    # A task's critic observations, where it has them: the step's, and an ended env's last.
+    critic_obs: torch.Tensor | None = None
+    final_critic_obs: torch.Tensor | None = None
+
+
+CRITIC_OUTPUTS = ("critic_obs", "final_critic_obs")
 
 
 _NEW_OUTPUTS = StepOutputs()
