@@ -8,6 +8,7 @@ import pytest
 import torch
 from conftest import needs_menagerie, needs_warp
 from lab_rsl_rl import framework as rsl_rl_framework
+from lab_skrl.ppo import LabSkrlPPO
 from rich.console import Console
 
 from labcli.gym import make_env
@@ -86,13 +87,54 @@ def test_rsl_rl_s_critic_reads_the_critic_group_and_its_actor_the_policy_s(
     assert "critic input" not in said.getvalue()
 
 
+def test_skrl_s_value_model_reads_them_as_states_and_bootstraps_time_outs_from_the_last(
+        tmp_path, monkeypatch):
+    """skrl's PPO takes the critic observations as its states: the value model's input, kept
+    in its memory, normalized by its state preprocessor; a time-out's bootstrap reads the
+    ended episode's last ones (`info["final_critic_obs"]`), not the next episode's first."""
+    recorded = []
+    record = LabSkrlPPO.record_transition
+
+    def spied(agent, **kwargs):
+        recorded.append({k: kwargs[k] for k in ("states", "next_states", "truncated")}
+                        | {"final": kwargs["infos"]["final_critic_obs"],
+                           "next": kwargs["infos"]["critic_obs"]})
+        return record(agent, **kwargs)
+
+    monkeypatch.setattr(LabSkrlPPO, "record_transition", spied)
+    said = io.StringIO()
+    # 0.2 s episodes: time-outs every 10 steps.
+    outcome = training.train(
+        "go1-flat", "skrl", num_envs=8, max_iterations=2, logs_dir=tmp_path,
+        overrides=[NOISE_FREE, "env.episode_length_s=0.2", "agent.rollouts=16",
+                   "agent.hidden_sizes=[16]", "agent.normalize_obs=true"],
+        console=Console(file=said, width=300))
+    assert outcome.summary["iterations"] == 2 and "critic input" not in said.getvalue()
+    saved = torch.load(outcome.run.dir / "model_2.pt", weights_only=True)
+    assert saved["state_preprocessor"]["running_mean"].shape == (48,)
+    assert saved["value"]["net.0.weight"].shape[1] == 48
+    timed_out = [r for r in recorded if r["truncated"].any()]
+    assert timed_out
+    for r in recorded:
+        ended = r["truncated"].view(-1)
+        assert torch.equal(r["next_states"][ended], r["final"][ended])
+        assert torch.equal(r["next_states"][~ended], r["next"][~ended])
+    assert not torch.equal(timed_out[0]["final"], timed_out[0]["next"])
+    # A resume restores the state preprocessor with the rest.
+    resumed = training.train(
+        "go1-flat", "skrl", max_iterations=3, logs_dir=tmp_path, checkpoint="latest",
+        console=Console(file=io.StringIO(), width=300))
+    assert resumed.summary["iterations"] == 3
+
+
 def test_a_framework_without_a_critic_input_says_its_critic_reads_the_policy_s(tmp_path):
     said = io.StringIO()
-    training.train("go1-flat", "skrl", num_envs=8, max_iterations=1, logs_dir=tmp_path,
-                   overrides=[NOISE_FREE, "agent.rollouts=8", "agent.hidden_sizes=[16]"],
+    training.train("go1-flat", "sb3", num_envs=8, max_iterations=1, logs_dir=tmp_path,
+                   overrides=[NOISE_FREE, "agent.n_steps=8", "agent.batch_size=16",
+                              "agent.net_arch=[16]"],
                    console=Console(file=said, width=300))
-    assert ("note: skrl has no critic input of its own: its critic reads the policy's "
-            "observations, noise included (env.critic_observations is for rsl_rl)"
+    assert ("note: sb3 has no critic input of its own: its critic reads the policy's "
+            "observations, noise included (env.critic_observations is for rsl_rl and skrl)"
             ) in said.getvalue()
 
 

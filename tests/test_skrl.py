@@ -85,6 +85,8 @@ def test_adapter_keeps_terminations_apart_from_time_outs():
 class RecordingAgent:
     """Stands in for skrl's PPO to see what the training loop hands it."""
 
+    state_space = None  # a task without critic observations: no states
+
     def __init__(self):
         self.transitions: list[dict] = []
 

@@ -18,17 +18,26 @@ from skrl.memories.torch import RandomMemory
 from skrl.resources.preprocessors.torch import RunningStandardScaler
 from skrl.resources.schedulers.torch import KLAdaptiveLR
 
-ENVS, STEPS, OBS, ACTIONS = 256, 8, 6, 2
+ENVS, STEPS, OBS, ACTIONS, STATES = 256, 8, 6, 2, 9
 DEVICES = ["cpu", pytest.param("cuda", marks=[pytest.mark.gpu, pytest.mark.skipif(
     not torch.cuda.is_available(), reason="needs a CUDA GPU")])]
 OBS_SPACE = gym.spaces.Box(-np.inf, np.inf, (OBS,))
 ACTION_SPACE = gym.spaces.Box(-1.0, 1.0, (ACTIONS,))
+# A task's critic observations: the value model's states, normalized on their own.
+STATE_SPACE = gym.spaces.Box(-np.inf, np.inf, (STATES,))
+WITH_STATES = {"state_preprocessor": RunningStandardScaler,
+               "state_preprocessor_kwargs": {"size": STATE_SPACE}}
 
 
 def agent(cls: type[PPO], device: str, **settings) -> PPO:
     torch.manual_seed(0)
+    states = STATE_SPACE if "state_preprocessor" in settings else None
+    if states is not None:
+        settings["state_preprocessor_kwargs"] = {**settings["state_preprocessor_kwargs"],
+                                                 "device": device}
     models = {"policy": Actor(OBS_SPACE, ACTION_SPACE, device, [32, 32], "elu", 0.0),
-              "value": Critic(OBS_SPACE, ACTION_SPACE, device, [32, 32], "elu")}
+              "value": Critic(OBS_SPACE, ACTION_SPACE, device, [32, 32], "elu",
+                              state_space=states)}
     cfg = PPO_CFG(**{
         "rollouts": STEPS, "learning_epochs": 3, "mini_batches": 5, "learning_rate": 1e-3,
         "learning_rate_scheduler": KLAdaptiveLR,
@@ -39,7 +48,8 @@ def agent(cls: type[PPO], device: str, **settings) -> PPO:
         "value_preprocessor_kwargs": {"size": 1, "device": device},
         "time_limit_bootstrap": True, **settings})
     made = cls(models=models, memory=RandomMemory(memory_size=STEPS, num_envs=ENVS, device=device),
-               observation_space=OBS_SPACE, action_space=ACTION_SPACE, device=device, cfg=cfg)
+               observation_space=OBS_SPACE, state_space=states, action_space=ACTION_SPACE,
+               device=device, cfg=cfg)
     made.init()
     made.enable_training_mode(True)
     return made
@@ -54,21 +64,25 @@ def rollout_and_update(alg: PPO, iteration: int) -> dict[str, float]:
     device = alg.device
     torch.manual_seed(iteration)  # the same action samples for every agent
     gen = torch.Generator(device=device).manual_seed(iteration)
-    obs = torch.randn(ENVS, OBS, generator=gen, device=device)
+    def draw(size: int) -> torch.Tensor | None:
+        return (None if size == STATES and alg.state_space is None
+                else 2.0 * torch.randn(ENVS, size, generator=gen, device=device) + 1.0)
+
+    obs, states = draw(OBS), draw(STATES)
     for step in range(STEPS):
         with torch.no_grad():
-            actions, _ = alg.act(obs, None, timestep=step, timesteps=STEPS)
-            next_obs = 2.0 * torch.randn(ENVS, OBS, generator=gen, device=device) + 1.0
+            actions, _ = alg.act(obs, states, timestep=step, timesteps=STEPS)
+            next_obs, next_states = draw(OBS), draw(STATES)
             alg.record_transition(
-                observations=obs, states=None, actions=actions,
+                observations=obs, states=states, actions=actions,
                 rewards=torch.randn(ENVS, 1, generator=gen, device=device),
-                next_observations=next_obs, next_states=None,
+                next_observations=next_obs, next_states=next_states,
                 terminated=torch.rand(ENVS, 1, generator=gen, device=device) < 0.05,
                 truncated=torch.rand(ENVS, 1, generator=gen, device=device) < 0.05,
                 infos={}, timestep=step, timesteps=STEPS)
         torch.manual_seed(1000 + iteration)  # the same mini-batch shuffles
         alg.post_interaction(timestep=step, timesteps=STEPS)
-        obs = next_obs
+        obs, states = next_obs, next_states
     figures = {tag: values[-1] for tag, values in alg.tracking_data.items()
                if not tag.startswith("Stats")}
     alg.tracking_data.clear()
@@ -95,6 +109,7 @@ def assert_same(eager: PPO, ours: LabSkrlPPO, exact: bool) -> None:
     {},
     {"value_clip": 0.0, "entropy_loss_scale": 0.01, "grad_norm_clip": 0.0},
     {"learning_rate_scheduler": None, "learning_rate_scheduler_kwargs": {}},
+    WITH_STATES,
 ])
 def test_lab_skrl_ppo_updates_as_skrl_does(device, settings):
     eager, ours = agents(device, **settings)

@@ -131,7 +131,8 @@ class _Session:
             if env.critic_observation_size and not fw.spec.critic_observations:
                 self.console.print(f"note: {fw.name} has no critic input of its own: its critic "
                                    "reads the policy's observations, noise included "
-                                   "(env.critic_observations is for rsl_rl)", highlight=False)
+                                   "(env.critic_observations is for rsl_rl and skrl)",
+                                   highlight=False)
             _check_memory(agent_cfg, env, self.device)
             agent_cfg.check_env(env)
             resume_state = None

@@ -70,11 +70,13 @@ class _ScaleRewards:
 
 
 def make_agent(cfg: SkrlPPOConfig, env: SkrlEnv, device: str, run_dir: Path) -> LabSkrlPPO:
-    obs_space, act_space = env.observation_space, env.action_space
+    obs_space, act_space, state_space = env.observation_space, env.action_space, env.state_space
     models = {
         "policy": Actor(obs_space, act_space, device, cfg.hidden_sizes, cfg.activation,
                         cfg.init_log_std),
-        "value": Critic(obs_space, act_space, device, cfg.hidden_sizes, cfg.activation),
+        # A task's critic observations, where it has them, are the value model's input.
+        "value": Critic(obs_space, act_space, device, cfg.hidden_sizes, cfg.activation,
+                        state_space=state_space),
     }
     ppo_cfg = PPO_CFG(
         rollouts=cfg.rollouts, learning_epochs=cfg.learning_epochs,
@@ -88,6 +90,9 @@ def make_agent(cfg: SkrlPPOConfig, env: SkrlEnv, device: str, run_dir: Path) -> 
         observation_preprocessor=RankedScaler if cfg.normalize_obs else None,
         observation_preprocessor_kwargs={"size": obs_space, "clip_threshold": cfg.clip_obs,
                                          "epsilon": OBS_EPSILON, "device": device},
+        state_preprocessor=RankedScaler if cfg.normalize_obs and state_space else None,
+        state_preprocessor_kwargs={"size": state_space, "clip_threshold": cfg.clip_obs,
+                                   "epsilon": OBS_EPSILON, "device": device},
         value_preprocessor=RankedScaler if cfg.normalize_value else None,
         value_preprocessor_kwargs={"size": 1, "device": device},
         grad_norm_clip=cfg.grad_norm_clip, ratio_clip=cfg.ratio_clip, value_clip=cfg.value_clip,
@@ -102,7 +107,7 @@ def make_agent(cfg: SkrlPPOConfig, env: SkrlEnv, device: str, run_dir: Path) -> 
     )
     memory = RandomMemory(memory_size=cfg.rollouts, num_envs=env.num_envs, device=device)
     agent = LabSkrlPPO(models=models, memory=memory, observation_space=obs_space,
-                       action_space=act_space, device=device, cfg=ppo_cfg,
+                       state_space=state_space, action_space=act_space, device=device, cfg=ppo_cfg,
                        cuda_graph=cfg.cuda_graph)
     agent.init()
     return agent
@@ -271,20 +276,24 @@ def _collect_and_update(agent: SkrlAgent, env: SkrlEnv, obs: torch.Tensor, ctx: 
     Returns the next observations."""
     cfg: SkrlPPOConfig | OffPolicyConfig = ctx.cfg  # type: ignore[assignment]
     total = cfg.max_iterations * cfg.rollouts
+    with_states = agent.state_space is not None  # PPO's value model on critic observations
     for step in range(cfg.rollouts):
         t = (iteration - 1) * cfg.rollouts + step
         agent.pre_interaction(timestep=t, timesteps=total)
         with torch.no_grad():
-            actions, _ = agent.act(obs, None, timestep=t, timesteps=total)
+            states = env.state() if with_states else None
+            actions, _ = agent.act(obs, states, timestep=t, timesteps=total)
             next_obs, rewards, terminated, truncated, info = env.step(actions)
             # Ended envs were reset in the same step, so next_obs holds their new first
-            # observation; skrl bootstraps time-outs from `next_observations`: give it the
-            # true last ones.
+            # observation; skrl bootstraps time-outs from `next_observations` (and
+            # `next_states`): give it the true last ones.
             done = terminated | truncated
             last_obs = torch.where(done, info["final_obs"], next_obs)
+            last_states = (torch.where(done, info["final_critic_obs"], env.state())
+                           if with_states else None)
             agent.record_transition(
-                observations=obs, states=None, actions=actions, rewards=rewards,
-                next_observations=last_obs, next_states=None, terminated=terminated,
+                observations=obs, states=states, actions=actions, rewards=rewards,
+                next_observations=last_obs, next_states=last_states, terminated=terminated,
                 truncated=truncated, infos=info, timestep=t, timesteps=total)
         agent.post_interaction(timestep=t, timesteps=total)  # the update needs gradients
         obs = next_obs

@@ -14,7 +14,7 @@ ADAPTER = WrapperSpec("skrl.adapter", Stage.ADAPTER, "lab_skrl.adapter:SkrlEnv",
 SPEC = FrameworkSpec(
     name="skrl", framework="lab_skrl.framework:SkrlFramework",
     agent_config="lab_skrl.config:SkrlPPOConfig",
-    wrappers=(ADAPTER,), library="skrl", data_parallel=True,
+    wrappers=(ADAPTER,), library="skrl", data_parallel=True, critic_observations=True,
     description="skrl PPO (torch end to end; running observation normalizer)")
 
 

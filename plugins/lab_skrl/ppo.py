@@ -89,7 +89,8 @@ class LabSkrlPPO(PPO):
         if self.graphed:
             self._lr = torch.zeros((), device=self.device)
             self._sums = torch.zeros(4, device=self.device)  # policy, value, entropy, std
-            modules = [self.policy, self.value, self._observation_preprocessor]
+            modules = [self.policy, self.value, self._observation_preprocessor,
+                       self._state_preprocessor]
             self._graph = UpdateGraph(self._epochs, self.optimizer,
                                       [m for m in modules if isinstance(m, nn.Module)],
                                       [self._lr])
@@ -193,10 +194,12 @@ class LabSkrlPPO(PPO):
     def _step(self, idx: torch.Tensor, train: bool) -> torch.Tensor:
         """One mini-batch step; returns its approximate KL."""
         cfg, batch = self.cfg, self.memory.tensors_view
+        states = batch.get("states")  # a task's critic observations, where it has them
         inputs = {
             "observations": self._observation_preprocessor(batch["observations"][idx],
                                                            train=train),
-            "states": self._state_preprocessor(None, train=train),
+            "states": self._state_preprocessor(None if states is None else states[idx],
+                                               train=train),
         }
         _, outputs = self.policy.act({**inputs, "taken_actions": batch["actions"][idx]},
                                      role="policy")
