@@ -9,11 +9,13 @@ import shutil
 
 import pytest
 import torch
+from conftest import needs_menagerie
 from lab_cartpole.cartpole import Cartpole
 from test_shards import assert_same, build, trajectory
 
 from labcli.envs.env import EPISODE, LabVecEnv
 from labcli.errors import LabError
+from labcli.gym import make_env
 from labcli.plugins import registry
 
 # Inductor compiles the step's C++ with the machine's compiler.
@@ -72,6 +74,30 @@ def test_a_compiled_step_computes_what_the_eager_step_computes():
             torch.testing.assert_close(b[4][EPISODE]["r"], a[4][EPISODE]["r"], rtol=1e-5,
                                        atol=1e-5)
         assert torch.equal(compiled.get_state()["episode_length"], torch.full((64,), 15))
+    finally:
+        eager.close()
+        compiled.close()
+
+
+@needs_menagerie("unitree_go1")
+def test_a_compiled_step_gives_the_critic_observations_the_eager_step_gives(tmp_path,
+                                                                            monkeypatch):
+    """A task's critic observations, and an ended episode's last ones, are outputs of the
+    compiled part too. Without pushes nothing but the policy's noise is drawn over these steps,
+    and the critic's have none: the eager step's exactly."""
+    monkeypatch.setenv("TORCHINDUCTOR_CACHE_DIR", str(tmp_path))
+    settings = ["env.critic_observations=noise_free", "env.events.push_robot=null"]
+    eager, compiled = (make_env("go1-flat", num_envs=8, seed=0, backend="cpu", device="cpu",
+                                overrides=[*settings, f"env.compile={str(c).lower()}"])
+                       for c in (False, True))
+    try:
+        first = [env.reset(seed=3)[1]["critic_obs"] for env in (eager, compiled)]
+        assert torch.equal(*first)
+        actions = torch.full((8, eager.single_action_space.shape[0]), 0.2)
+        for _ in range(4):  # the trace's step, then the compiled code's
+            a, b = eager.step(actions)[4], compiled.step(actions)[4]
+            for key in ("critic_obs", "final_critic_obs"):
+                assert torch.equal(a[key], b[key]), key
     finally:
         eager.close()
         compiled.close()

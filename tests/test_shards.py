@@ -48,7 +48,8 @@ def trajectory(env, steps: int, seed: int = 5) -> list[torch.Tensor]:
         obs, reward, terminated, truncated, info = env.step(action)
         out += [obs, reward, terminated, truncated, info["terminations"], info[f"_{EPISODE}"],
                 *info[EPISODE].values(),
-                *(info[key] for key in ("final_obs", "critic_obs") if key in info)]
+                *(info[key] for key in ("final_obs", "critic_obs", "final_critic_obs")
+                  if key in info)]
     return out
 
 
