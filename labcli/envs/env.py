@@ -200,9 +200,13 @@ class LabVecEnv(gym.vector.VectorEnv):
     def critic_info(self, out: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
         """`{"critic_obs": ...}` of the state observed last (in `out`, if given); {} for a
         task without them."""
-        if not self.critic_observation_size:
-            return {}
-        return {"critic_obs": _observed(self.task.critic_observations(), out)}
+        return ({"critic_obs": self.critic_observations(out)} if self.critic_observation_size
+                else {})
+
+    def critic_observations(self, out: torch.Tensor | None = None) -> torch.Tensor:
+        """The task's critic observations of the state observed last (in `out`, if given), as
+        `observations` returns the policy's."""
+        return _observed(self.task.critic_observations(), out)
 
     def one_seed(self, seed: int | Sequence[int]) -> int:
         """All envs share one seed: a list of seeds, one per env (as gymnasium's
@@ -359,16 +363,19 @@ class LabVecEnv(gym.vector.VectorEnv):
             self._reset_envs(self._pending)
             self._pending.copy_(done)
             obs = self.observations(o.obs)
-            return obs, reward, terminated_any, truncated, info | self.critic_info(o.critic_obs)
+            if self.critic_observation_size:
+                info["critic_obs"] = self.critic_observations(o.critic_obs)
+            return obs, reward, terminated_any, truncated, info
         final_obs = info["final_obs"] = self.observations(o.final_obs)
         info["_final_obs"] = done
         if self.critic_observation_size:  # the critic's of the same last state
-            info["final_critic_obs"] = self.critic_info(o.final_critic_obs)["critic_obs"]
+            info["final_critic_obs"] = self.critic_observations(o.final_critic_obs)
         # With no env reset the state is unchanged: a copy, not the task's terms again.
         obs = (self.observations(o.obs) if ended and self._reset_envs(done)
                else _copy(final_obs, o.obs))
-        # The critic's, as the task observed it last: the state `obs` is of.
-        return obs, reward, terminated_any, truncated, info | self.critic_info(o.critic_obs)
+        if self.critic_observation_size:  # as the task observed it last: the state `obs` is of
+            info["critic_obs"] = self.critic_observations(o.critic_obs)
+        return obs, reward, terminated_any, truncated, info
 
     def _safe_actions(self, actions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None]:
         """The actions clipped, non-finite ones as 0; and the envs that had one (None: none)."""

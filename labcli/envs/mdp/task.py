@@ -230,6 +230,9 @@ class RobotTask(Task):
         if self._critic is not None and self._critic.frames is not None:
             self._term_resets.append(self._critic.frames.reset)
             self._carriers.append(("critic_observations/frames", self._critic.frames))
+        # The histories that keep each step's frame at the next step's start.
+        self._histories = [f for f in (self._frames, self._critic and self._critic.frames)
+                           if f is not None]
 
     # the env's calls ---------------------------------------------------------------------------
     def apply_actions(self, actions: torch.Tensor) -> None:
@@ -239,10 +242,8 @@ class RobotTask(Task):
         self.robot.forget_derived()
         self.previous_action.copy_(self.action)
         self.action.copy_(actions)
-        if self._frames is not None:
-            self._frames.advance()
-        if self._critic is not None and self._critic.frames is not None:
-            self._critic.frames.advance()
+        for history in self._histories:
+            history.advance()
         for hook in self._pre_physics:
             hook()
         self.actuation(self.action, self.targets)
