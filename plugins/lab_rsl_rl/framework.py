@@ -90,7 +90,8 @@ def mirror_augmentation(mirror: Mirror) -> Callable[..., Augmented]:
 
     def augment(env: Any, obs: TensorDict | None, actions: torch.Tensor | None) -> Augmented:
         if obs is not None:
-            mirrored = TensorDict({k: mirror.observations(v) for k, v in obs.items()},
+            mirrored = TensorDict({k: (mirror.critic_observations if k == CRITIC_GROUP
+                                       else mirror.observations)(v) for k, v in obs.items()},
                                   batch_size=obs.batch_size, device=obs.device)
             obs = torch.cat([obs, mirrored], dim=0)
         if actions is not None:

@@ -244,7 +244,7 @@ class YamLiftConfig(c.RobotTaskConfig):
     commands: YamLiftCommands = YamLiftCommands()
     observations: YamLiftObservations = YamLiftObservations()
     # mjlab's critic group: the actor's terms without their noise.
-    critic_observations: Literal["policy", "noise_free"] = "noise_free"
+    critic_observations: c.CriticInput = "noise_free"
     rewards: YamLiftRewards = YamLiftRewards()
     terminations: YamLiftTerminations = YamLiftTerminations()
     events: YamLiftEvents = YamLiftEvents()

@@ -20,6 +20,8 @@ from labcli.envs.mdp.description import RobotDescription
 from labcli.envs.mdp.terrain import TerrainConfig
 
 Range = tuple[float, float]
+# What an actor-critic's critic reads (RobotTaskConfig.critic_observations).
+CriticInput = Literal["policy", "noise_free", "privileged"]
 # Body names or patterns (regular expressions matched whole): at least one.
 Bodies = Annotated[list[str], Field(min_length=1)]
 # Site names or patterns, likewise.
@@ -379,6 +381,53 @@ class ContactForces(ObsTerm):
     impl: ClassVar[str] = "labcli.envs.mdp.observations:contact_forces"
     unit: ClassVar[str] = "N, world frame"
     bodies: Bodies
+
+
+class FootObs(ObsTerm):
+    """A term about each foot, one column (or three) per foot in the model's order: `bodies`,
+    whose subtrees' contacts with the terrain MuJoCo's contact sensors find (as the foot reward
+    terms'). The feet's mirror image is the robot description's mirror of their names. mjlab's
+    critic reads these (`env.critic_extras`). Read from MuJoCo sensors, which a physics step
+    computes at its start: one physics step behind the state, and at an episode's first state
+    still the state before the reset (mjlab runs MuJoCo's forward pass before its
+    observations)."""
+
+    mirror: ClassVar[str | None] = "feet"
+    bodies: Bodies
+
+
+class FootHeight(FootObs):
+    """Each foot's site above the terrain under it (m; flat ground: the site's z), one site on
+    each foot: mjlab's `foot_height`."""
+
+    impl: ClassVar[str] = "labcli.envs.mdp.observations:foot_height"
+    unit: ClassVar[str] = "m, the foot's site above the ground under it"
+    sites: Sites
+
+
+class FootAirTime(FootObs):
+    """Each foot's time in the air up to the step's end (s; 0 while it touches): mjlab's
+    `foot_air_time`."""
+
+    impl: ClassVar[str] = "labcli.envs.mdp.observations:foot_air_time"
+    unit: ClassVar[str] = "s in the air"
+
+
+class FootContact(FootObs):
+    """1 where the foot touches the terrain, else 0: mjlab's `foot_contact`."""
+
+    impl: ClassVar[str] = "labcli.envs.mdp.observations:foot_contact"
+    unit: ClassVar[str] = "1 touching, 0 not"
+
+
+class FootContactForces(FootObs):
+    """Each foot's net contact force with the terrain, world frame, each component as
+    sign(f) log(1 + |f|): mjlab's `foot_contact_forces`. A world-frame vector has no mirror
+    image in the base's frame: symmetric training refuses it."""
+
+    impl: ClassVar[str] = "labcli.envs.mdp.observations:foot_contact_forces"
+    mirror: ClassVar[str | None] = None
+    unit: ClassVar[str] = "sign(f) log(1 + |f| / N), world frame"
 
 
 # rewards ---------------------------------------------------------------------------------------
@@ -1157,16 +1206,28 @@ class RobotTaskConfig(TaskConfig):
     curriculum: Group = Group()
     observation_noise: bool = Field(True, description="add each observation term's noise "
                                     "(training; lab play sets it false unless asked)")
-    critic_observations: Literal["policy", "noise_free"] = Field(
+    critic_observations: CriticInput = Field(
         "policy", description="what an actor-critic learner's critic reads: the policy's "
-        "observations, or the same terms without their noise, bias and delay (the critic group "
-        "of mjlab and Isaac Lab, corruption off; a framework without a critic input of its own "
-        "trains its critic on the policy's, and says so)")
+        "observations; noise_free, the same terms without their noise, bias and delay (the "
+        "critic group of mjlab and Isaac Lab, corruption off); privileged, those and then "
+        "env.critic_extras, terms only the critic reads (a framework without a critic input of "
+        "its own trains its critic on the policy's, and says so)")
+    # Concrete in a subclass too, as the other groups.
+    critic_extras: Group = Field(Group(), description="observation terms only the critic "
+                                 "reads, without noise, after the policy's (with "
+                                 "critic_observations: privileged)")
     success: Term | None = None
     rewards_per_second: bool = Field(False, description="weights are per second of the "
                                      "episode: times the env step's duration in each step "
                                      "(Isaac Lab's reward manager)")
     reward_weights: dict[str, float] = Field(default_factory=dict, exclude=True)
+
+    @model_validator(mode="after")
+    def _extras_are_privileged(self) -> RobotTaskConfig:
+        if self.critic_observations == "privileged" and not self.critic_extras.terms():
+            raise ValueError("critic_observations is privileged and env.critic_extras lists no "
+                             "term: give one, or use noise_free")
+        return self
 
     @model_validator(mode="after")
     def _weights_live_with_rewards(self) -> RobotTaskConfig:

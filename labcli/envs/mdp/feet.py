@@ -160,3 +160,11 @@ class FootSites:
     def speed_xy(self) -> torch.Tensor:
         return self.robot.per_state((*self._key, "speed_xy"), lambda: (
             torch.linalg.vector_norm(self._vel().view(self._shape)[..., :2], dim=2)))
+
+
+def feet_sensors(model: mujoco.MjModel, bodies: Sequence[str], sites: Sequence[str]
+                 ) -> list[sensors.Sensor]:
+    """The sensors of the feet's contacts (`bodies`: patterns) and of one site on each."""
+    found = sensors.body_names(model, bodies)
+    return [*FootContacts.sensors(model, found),
+            *FootSites.sensors(model, paired_sites(model, found, sites))]

@@ -10,6 +10,7 @@ import torch
 
 from labcli.envs.mdp import config as c
 from labcli.envs.mdp import events, math, names, objects, sensors
+from labcli.envs.mdp.feet import FootContacts, FootSites, feet_sensors, paired_sites
 from labcli.errors import LabError
 
 if TYPE_CHECKING:
@@ -226,3 +227,50 @@ class contact_forces:  # noqa: N801
 
     def __call__(self) -> torch.Tensor:
         return self.data()
+
+
+class _feet:
+    """The feet's contacts with the terrain (shared with the foot rewards), one column per
+    foot, named by its body."""
+
+    def __init__(self, task: RobotTask, cfg: c.FootObs):
+        self.contacts = FootContacts.of(task, cfg.bodies)
+        self.names = list(self.contacts.bodies)
+        self.dtype = task.ones.dtype
+
+    @staticmethod
+    def sensors(model: mujoco.MjModel, cfg: c.FootObs) -> list[sensors.Sensor]:
+        return FootContacts.sensors(model, cfg.bodies)
+
+
+class foot_height(_feet):  # noqa: N801 - a term, named as mjlab's
+    def __init__(self, task: RobotTask, cfg: c.FootHeight):
+        super().__init__(task, cfg)
+        self.sites = FootSites.of(task, paired_sites(task.model, self.contacts.bodies, cfg.sites))
+
+    @staticmethod
+    def sensors(model: mujoco.MjModel, cfg: c.FootHeight) -> list[sensors.Sensor]:
+        return feet_sensors(model, cfg.bodies, cfg.sites)
+
+    def __call__(self) -> torch.Tensor:
+        return self.sites.heights()
+
+
+class foot_air_time(_feet):  # noqa: N801
+    def __call__(self) -> torch.Tensor:
+        return self.contacts.air_time()
+
+
+class foot_contact(_feet):  # noqa: N801
+    def __call__(self) -> torch.Tensor:
+        return self.contacts.touching().to(self.dtype)
+
+
+class foot_contact_forces(_feet):  # noqa: N801
+    def __init__(self, task: RobotTask, cfg: c.FootContactForces):
+        super().__init__(task, cfg)
+        self.names = [f"{b}.{axis}" for b in self.contacts.bodies for axis in ("fx", "fy", "fz")]
+
+    def __call__(self) -> torch.Tensor:
+        force = self.contacts.force().flatten(1)
+        return torch.sign(force).mul_(torch.log1p(force.abs()))

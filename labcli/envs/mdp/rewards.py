@@ -11,7 +11,13 @@ import torch
 
 from labcli.envs.mdp import config as c
 from labcli.envs.mdp import names, objects, sensors
-from labcli.envs.mdp.feet import FootContacts, FootSites, paired_sites, site_names
+from labcli.envs.mdp.feet import (
+    FootContacts,
+    FootSites,
+    feet_sensors,
+    paired_sites,
+    site_names,
+)
 from labcli.envs.mdp.observations import distance_to_target, heading_projection
 from labcli.envs.mdp.robot import Robot
 from labcli.errors import LabError
@@ -502,9 +508,7 @@ class feet_clearance:  # noqa: N801
 
 def _feet_sensors(model: mujoco.MjModel, cfg: c.FeetSwingHeight | c.FeetSlip
                   ) -> list[sensors.Sensor]:
-    bodies = sensors.body_names(model, cfg.bodies)
-    return [*FootContacts.sensors(model, bodies),
-            *FootSites.sensors(model, paired_sites(model, bodies, cfg.sites))]
+    return feet_sensors(model, cfg.bodies, cfg.sites)
 
 
 class _FootTerm:

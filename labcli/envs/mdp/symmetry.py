@@ -22,6 +22,7 @@ from labcli.errors import LabError
 OFF = "--set agent.symmetry_augmentation=false --set agent.mirror_loss_coef=0"
 
 if TYPE_CHECKING:
+    from labcli.envs.mdp.description import RobotDescription
     from labcli.envs.mdp.task import Built, RobotTask
 
 # The signs of a base-frame vector's x, y, z in the mirror image through the x-z plane: a
@@ -32,15 +33,20 @@ POLAR, AXIAL = (1.0, -1.0, 1.0), (-1.0, 1.0, -1.0)
 @dataclass(frozen=True)
 class Mirror:
     """`observations(obs)[:, i] = obs_sign[i] * obs[:, obs_index[i]]`, and likewise for the
-    actions: both maps are their own inverses."""
+    critic's own observations and the actions: each map is its own inverse."""
 
     obs_index: torch.Tensor
     obs_sign: torch.Tensor
     action_index: torch.Tensor
     action_sign: torch.Tensor
+    critic_index: torch.Tensor
+    critic_sign: torch.Tensor
 
     def observations(self, obs: torch.Tensor) -> torch.Tensor:
         return obs.index_select(-1, self.obs_index) * self.obs_sign
+
+    def critic_observations(self, obs: torch.Tensor) -> torch.Tensor:
+        return obs.index_select(-1, self.critic_index) * self.critic_sign
 
     def actions(self, actions: torch.Tensor) -> torch.Tensor:
         return actions.index_select(-1, self.action_index) * self.action_sign
@@ -69,20 +75,35 @@ def mirror_of(task: RobotTask) -> Mirror:
                            "fix env.robot.mirror: each actuated joint's image is actuated too")
         index.append(joints.index(image))
         sign.append(flips)
-    obs_index: list[int] = []
-    obs_sign: list[float] = []
-    for built, names in zip(task._obs, task._obs_names, strict=True):
-        local, signs = _term_map(built, names, (index, sign))
-        for _ in range(built.cfg.frames):  # each frame of the term, oldest first
-            obs_index += [len(obs_index) + i for i in local]
-            obs_sign += signs
+    obs_index, obs_sign = _columns_map(task._obs, task._obs_names, (index, sign), robot,
+                                       "observations")
     assert len(obs_index) == len(task.observation_names)
+    # The critic's: the policy's columns, then its own terms' (critic_observations: privileged).
+    extras = _columns_map(task._critic_extras, task._critic_extra_names, (index, sign), robot,
+                          "critic_extras")
+    critic_index = obs_index + [len(obs_index) + i for i in extras[0]]
     # The signs in the learner's float32, the observations' and actions' own dtype.
     device = task.ones.device
     return Mirror(torch.tensor(obs_index, device=device),
                   torch.tensor(obs_sign, dtype=torch.float32, device=device),
                   torch.tensor(index, device=device),
-                  torch.tensor(sign, dtype=torch.float32, device=device))
+                  torch.tensor(sign, dtype=torch.float32, device=device),
+                  torch.tensor(critic_index, device=device),
+                  torch.tensor(obs_sign + extras[1], dtype=torch.float32, device=device))
+
+
+def _columns_map(built: list[Built], names: list[list[str]], joints: tuple[list[int], list[float]],
+                 robot: RobotDescription, group: str) -> tuple[list[int], list[float]]:
+    """Where each column of a group's concatenated terms (each frame of a term, oldest first)
+    comes from in the mirror image, and its sign there."""
+    index: list[int] = []
+    signs: list[float] = []
+    for term, columns in zip(built, names, strict=True):
+        local, term_signs = _term_map(term, columns, joints, robot, group)
+        for _ in range(term.cfg.frames):
+            index += [len(index) + i for i in local]
+            signs += term_signs
+    return index, signs
 
 
 def mirror_of_env(env: Any) -> Mirror:
@@ -96,8 +117,8 @@ def mirror_of_env(env: Any) -> Mirror:
     return mirror_of(task)
 
 
-def _term_map(built: Built, names: list[str],
-              joints: tuple[list[int], list[float]]) -> tuple[list[int], list[float]]:
+def _term_map(built: Built, names: list[str], joints: tuple[list[int], list[float]],
+              robot: RobotDescription, group: str) -> tuple[list[int], list[float]]:
     """Where each of a term's columns comes from in the mirror image, and its sign there
     (`joints`: that map over the actuated joints, which are the actions' too)."""
     kind = type(built.cfg).mirror
@@ -114,13 +135,17 @@ def _term_map(built: Built, names: list[str],
         images = [points.get((x, 0.0 - y)) for x, y in points]
         if None not in images:
             return images, [1.0] * width
+    if kind == "feet":  # a column per foot, named by its body
+        images = [f"{built.name}.{robot.mirrored(foot)[0]}" for foot in built.made.names]
+        if all(image in names for image in images):
+            return [names.index(image) for image in images], [1.0] * width
     if kind == "command":
         signs = getattr(built.made.command, "mirror_signs", None)
         if signs is not None and len(signs) == width:
             return identity, list(signs)
     raise LabError(f"observation term '{built.name}' has no mirror image that lab knows "
                    f"({type(built.cfg).__name__})",
-                   f"leave it out (--set env.observations.{built.name}=null) or train without "
+                   f"leave it out (--set env.{group}.{built.name}=null) or train without "
                    f"symmetry ({OFF})")
 
 

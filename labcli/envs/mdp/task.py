@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import inspect
 from collections.abc import Callable, Sequence
+from itertools import accumulate
 from typing import Any
 
 import mujoco
@@ -58,9 +59,14 @@ def impl_of(term: Term) -> Any:
 
 def _all_terms(cfg: RobotTaskConfig) -> list[Term]:
     groups: Sequence[Group] = (cfg.commands, cfg.observations, cfg.rewards, cfg.terminations,
-                               cfg.events, cfg.curriculum)
+                               cfg.events, cfg.curriculum, *_critic_extras(cfg))
     return [cfg.actions, *(t for g in groups for _, t in g.terms()),
             *([cfg.success] if cfg.success is not None else [])]
+
+
+def _critic_extras(cfg: RobotTaskConfig) -> list[Group]:
+    """The critic's own terms' group where the critic reads them."""
+    return [cfg.critic_extras] if cfg.critic_observations == "privileged" else []
 
 
 class Built:
@@ -155,6 +161,8 @@ class RobotTask(Task):
         # Commands first: the terms made after them find theirs (`command(name)`).
         self._commands = {name: Built(self, name, t) for name, t in cfg.commands.terms()}
         self._obs = [Built(self, name, t) for name, t in cfg.observations.terms()]
+        self._critic_extras = [Built(self, name, t) for group in _critic_extras(cfg)
+                               for name, t in group.terms()]
         self._rewards = [Built(self, name, t) for name, t in cfg.rewards.terms()]
         terminations = [Built(self, name, t) for name, t in cfg.terminations.terms()]
         self._terminations = [b for b in terminations if not b.cfg.time_out]
@@ -166,7 +174,8 @@ class RobotTask(Task):
         self._curriculum = [Built(self, name, t).compute for name, t in cfg.curriculum.terms()]
         self._success = (Built(self, "success", cfg.success) if cfg.success is not None
                          else None)
-        every = [*self._commands.values(), *self._obs, *self._rewards, *self._terminations,
+        every = [*self._commands.values(), *self._obs, *self._critic_extras, *self._rewards,
+                 *self._terminations,
                  *self._time_outs, *self._events, *([self._success] if self._success else [])]
         self._terms_made = True
         shared = list(self._shared.values())
@@ -225,8 +234,10 @@ class RobotTask(Task):
         if self._frames is not None:
             self._term_resets.append(self._frames.reset)
             self._carriers.append(("observations/frames", self._frames))
-        self._critic = (CriticObservations(self, terms, self._obs_widths)
-                        if cfg.critic_observations == "noise_free" else None)
+        self._critic_extra_names = [self._names(b) for b in self._critic_extras]
+        self._critic = (CriticObservations(self, terms, self._obs_widths, self._critic_extras,
+                                           [len(n) for n in self._critic_extra_names])
+                        if cfg.critic_observations != "policy" else None)
         if self._critic is not None and self._critic.frames is not None:
             self._term_resets.append(self._critic.frames.reset)
             self._carriers.append(("critic_observations/frames", self._critic.frames))
@@ -417,19 +428,28 @@ class RobotTask(Task):
 class CriticObservations:
     """The policy's observation terms as the critic reads them (`critic_observations:
     noise_free`): each term's value without the policy's noise, bias and delay, clipped, scaled
-    and framed as the policy's, in the same columns (so a mirror of the policy's observations
-    mirrors them too). `value` is the last state's, a tensor each call rewrites."""
+    and framed as the policy's, in the same columns; with `privileged`, the critic's own terms
+    (`extras`) after them, likewise without noise. `value` is the last state's, a tensor each
+    call rewrites."""
 
-    def __init__(self, task: RobotTask, terms: list[Any], widths: list[int]):
+    def __init__(self, task: RobotTask, terms: list[Any], widths: list[int],
+                 extras: list[Built], extra_widths: list[int]):
         clean = [t.model_copy(update={"noise": 0.0, "bias": 0.0, "delay": (0, 0)})
-                 for t in terms]
-        self.post = ObservationPost(task, clean, widths)
-        self.frames = (frames.ObservationFrames(task, clean, widths)
+                 for t in [*terms, *(b.cfg for b in extras)]]
+        self.policy_width = sum(widths)
+        ends = list(accumulate(extra_widths, initial=self.policy_width))
+        self.extras = [(b.compute, slice(start, end))
+                       for b, start, end in zip(extras, ends, ends[1:], strict=False)]
+        self.post = ObservationPost(task, clean, [*widths, *extra_widths])
+        self.frames = (frames.ObservationFrames(task, clean, [*widths, *extra_widths])
                        if any(t.frames > 1 for t in clean) else None)
         self.value = self.post.raw if self.frames is None else self.frames.out
 
     def __call__(self, raw: torch.Tensor) -> None:
-        frame = self.post(self.post.raw.copy_(raw))
+        self.post.raw[:, :self.policy_width].copy_(raw)
+        for compute, columns in self.extras:
+            self.post.raw[:, columns].copy_(compute())
+        frame = self.post(self.post.raw)
         self.value = frame if self.frames is None else self.frames(frame)
 
 
