@@ -48,8 +48,9 @@ def algorithms(device: str, **kwargs) -> tuple[PPO, LabPPO]:
 def symmetry(device: str, augmentation: bool, mirror_loss_coef: float) -> dict:
     """RSL-RL's symmetry_cfg with a mirror image of the test's observations and actions (two
     columns swapped, signs flipped), as lab's runner builds it from a task's `Mirror`."""
+    obs_index, obs_sign = [1, 0, 2, 3, 4, 5], [1.0, 1.0, -1.0, 1.0, -1.0, 1.0]
     mirror = Mirror(*(torch.tensor(v, device=device) for v in (
-        [1, 0, 2, 3, 4, 5], [1.0, 1.0, -1.0, 1.0, -1.0, 1.0], [1, 0], [-1.0, -1.0])))
+        obs_index, obs_sign, [1, 0], [-1.0, -1.0], obs_index, obs_sign)))
     return {"env": None, "data_augmentation_func": mirror_augmentation(mirror),
             "use_data_augmentation": augmentation, "use_mirror_loss": mirror_loss_coef > 0,
             "mirror_loss_coeff": mirror_loss_coef}
