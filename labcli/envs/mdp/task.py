@@ -175,8 +175,8 @@ class RobotTask(Task):
         self._success = (Built(self, "success", cfg.success) if cfg.success is not None
                          else None)
         every = [*self._commands.values(), *self._obs, *self._critic_extras, *self._rewards,
-                 *self._terminations,
-                 *self._time_outs, *self._events, *([self._success] if self._success else [])]
+                 *self._terminations, *self._time_outs, *self._events,
+                 *([self._success] if self._success else [])]
         self._terms_made = True
         shared = list(self._shared.values())
         self._pre_physics = [b.pre_physics for b in every if b.pre_physics is not None]
@@ -439,7 +439,7 @@ class CriticObservations:
         self.policy_width = sum(widths)
         ends = list(accumulate(extra_widths, initial=self.policy_width))
         self.extras = [(b.compute, slice(start, end))
-                       for b, start, end in zip(extras, ends, ends[1:], strict=False)]
+                       for b, start, end in zip(extras, ends[:-1], ends[1:], strict=True)]
         self.post = ObservationPost(task, clean, [*widths, *extra_widths])
         self.frames = (frames.ObservationFrames(task, clean, [*widths, *extra_widths])
                        if any(t.frames > 1 for t in clean) else None)
