@@ -68,6 +68,10 @@ def assert_same(a: list[torch.Tensor], b: list[torch.Tensor]) -> None:
                  {"episode_length_s": 0.3, "actions": {"scale": 0.25, "delay": (1, 7)},
                   "critic_observations": "noise_free"},
                  marks=needs_menagerie("unitree_go1")),
+    # The critic's own terms: the feet's contacts and air times carried in every shard.
+    pytest.param("g1-flat", 32, "same_step", 30,
+                 {"episode_length_s": 0.3, "critic_observations": "privileged"},
+                 marks=needs_menagerie("unitree_g1")),
 ])
 def test_shards_give_the_outputs_of_one_env(task, num_envs, mode, steps, cfg):
     spec = registry.get_task(task)
