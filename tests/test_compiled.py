@@ -79,15 +79,17 @@ def test_a_compiled_step_computes_what_the_eager_step_computes():
         compiled.close()
 
 
-@needs_menagerie("unitree_go1")
+@needs_menagerie("unitree_g1")
 def test_a_compiled_step_gives_the_critic_observations_the_eager_step_gives(tmp_path,
                                                                             monkeypatch):
     """A task's critic observations, and an ended episode's last ones, are outputs of the
-    compiled part too. Without pushes nothing but the policy's noise is drawn over these steps,
-    and the critic's have none: the eager step's exactly."""
+    compiled part too: the policy's terms without noise and the critic's own (the G1's feet;
+    the compiled step takes the reset path every step, which the eager one skips). Without
+    pushes nothing but the policy's noise is drawn over these steps, and the critic's have
+    none: the eager step's exactly."""
     monkeypatch.setenv("TORCHINDUCTOR_CACHE_DIR", str(tmp_path))
-    settings = ["env.critic_observations=noise_free", "env.events.push_robot=null"]
-    eager, compiled = (make_env("go1-flat", num_envs=8, seed=0, backend="cpu", device="cpu",
+    settings = ["env.critic_observations=privileged", "env.events.push_robot=null"]
+    eager, compiled = (make_env("g1-flat", num_envs=8, seed=0, backend="cpu", device="cpu",
                                 overrides=[*settings, f"env.compile={str(c).lower()}"])
                        for c in (False, True))
     try:

@@ -90,6 +90,28 @@ def test_the_g1_s_feet_in_the_air_and_standing():
         env.close()
 
 
+def test_an_env_s_feet_read_the_same_whether_or_not_another_env_was_reset():
+    """The observations of a step that reset some envs are the others' last ones: the air
+    time an observation reads is the one the step kept, not counted on by the reset's
+    recomputation (the compiled and GPU steps always take the reset path)."""
+    env = g1(*DROPPED)  # at zero actions each G1 falls, one before the other
+    try:
+        zero = torch.zeros(2, env.single_action_space.shape[0])
+        env.reset(seed=1)
+        some_reset = 0
+        for _ in range(120):
+            *_, terminated, truncated, info = env.step(zero)
+            done = terminated | truncated
+            if done.any() and not done.all():
+                some_reset += 1
+                kept = ~done
+                assert torch.equal(info["critic_obs"][kept], info["final_critic_obs"][kept])
+                assert (extras(env, info)[f"foot_air_time.{FEET[0]}"][done] == 0.0).all()
+        assert some_reset
+    finally:
+        env.close()
+
+
 def test_the_critic_s_mirror_swaps_the_feet_and_refuses_world_frame_forces():
     env = g1()
     try:

@@ -115,6 +115,11 @@ class FootContacts:
         return self.robot.per_state((*self._key, "air_time"), lambda: (
             (self._air + self._dt).masked_fill_(self.touching(), 0.0)))
 
+    def air_time_kept(self) -> torch.Tensor:
+        """`air_time()` as `after_step` kept it (0 after a reset): what an observation reads,
+        the same whether or not other envs were reset since."""
+        return self._air
+
     def after_step(self) -> None:
         self._air.copy_(self.air_time())
         self._was_touching.copy_(self.touching())

@@ -258,7 +258,7 @@ class foot_height(_feet):  # noqa: N801 - a term, named as mjlab's
 
 class foot_air_time(_feet):  # noqa: N801
     def __call__(self) -> torch.Tensor:
-        return self.contacts.air_time()
+        return self.contacts.air_time_kept()
 
 
 class foot_contact(_feet):  # noqa: N801
