@@ -363,18 +363,17 @@ class LabVecEnv(gym.vector.VectorEnv):
             self._reset_envs(self._pending)
             self._pending.copy_(done)
             obs = self.observations(o.obs)
-            if self.critic_observation_size:
-                info["critic_obs"] = self.critic_observations(o.critic_obs)
-            return obs, reward, terminated_any, truncated, info
+            return obs, reward, terminated_any, truncated, info | self.critic_info(o.critic_obs)
         final_obs = info["final_obs"] = self.observations(o.final_obs)
         info["_final_obs"] = done
         if self.critic_observation_size:  # the critic's of the same last state
             info["final_critic_obs"] = self.critic_observations(o.final_critic_obs)
         # With no env reset the state is unchanged: a copy, not the task's terms again.
-        obs = (self.observations(o.obs) if ended and self._reset_envs(done)
-               else _copy(final_obs, o.obs))
-        if self.critic_observation_size:  # as the task observed it last: the state `obs` is of
-            info["critic_obs"] = self.critic_observations(o.critic_obs)
+        reset = ended and self._reset_envs(done)
+        obs = self.observations(o.obs) if reset else _copy(final_obs, o.obs)
+        if self.critic_observation_size:  # of the state `obs` is of
+            info["critic_obs"] = (self.critic_observations(o.critic_obs) if reset
+                                  else _copy(info["final_critic_obs"], o.critic_obs))
         return obs, reward, terminated_any, truncated, info
 
     def _safe_actions(self, actions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None]:
