@@ -148,7 +148,12 @@ def test_a_missing_normalizer_makes_its_checkpoint_incomplete(trained, tmp_path)
     assert checkpoints.latest_complete(fw, run_dir).iteration == 1
     for args in (["play", "--checkpoint", str(run_dir / "model_2.zip")],
                  ["export", "onnx", "--checkpoint", str(run_dir / "model_2.zip")]):
-        assert_one_line_error(lab(*args, logs=logs), "model_2.zip is incomplete")
+        assert_one_line_error(lab(*args, logs=logs),
+                              "model_2.zip is incomplete: vecnormalize_2.json is missing")
+    # A run dir with no complete checkpoint: the error says what its newest one lacks.
+    (run_dir / "vecnormalize_1.json").unlink()
+    assert_one_line_error(lab("play", "--checkpoint", str(run_dir), logs=logs),
+                          "(the newest, model_2.zip: vecnormalize_2.json is missing)")
     # Without its manifest (a run from before manifests), loading names the missing file.
     for manifest in run_dir.glob("checkpoint_*.json"):
         manifest.unlink()

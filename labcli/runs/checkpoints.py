@@ -186,21 +186,30 @@ def _read_manifest(path: Path) -> dict[str, Any]:
 
 def complete(fw: FrameworkSpec, checkpoint: Checkpoint) -> bool:
     """Whether `checkpoint` reads back whole: its manifest's files all there, as written."""
+    return damage(fw, checkpoint) is None
+
+
+def damage(fw: FrameworkSpec, checkpoint: Checkpoint) -> str | None:
+    """What keeps `checkpoint` from reading back whole (a file of its manifest missing, or not
+    as written), or None where nothing does."""
     directory = checkpoint.path.parent
+    manifest_file = manifest_path(directory, checkpoint.iteration)
     try:
-        manifest = _read_manifest(manifest_path(directory, checkpoint.iteration))
+        manifest = _read_manifest(manifest_file)
     except (OSError, ValueError, UnicodeDecodeError):
         if any(directory.glob(f"{MANIFEST_PREFIX}*.json")):
-            return False  # a run with manifests: one without is half-written
-        return _legacy_complete(checkpoint.path)
+            # A run with manifests: a checkpoint without one is half-written.
+            return f"its manifest {manifest_file.name} is missing or unreadable"
+        return None if _legacy_complete(checkpoint.path) else f"{checkpoint.path.name} is cut short"
     if checkpoint.path.name not in manifest["files"]:
-        return False
+        return f"its manifest {manifest_file.name} does not list {checkpoint.path.name}"
     for name, entry in manifest["files"].items():
         path = directory / name
-        if (path.is_symlink() or not path.is_file() or path.stat().st_size != entry["bytes"]
-                or _sha256(path) != entry["sha256"]):
-            return False
-    return True
+        if path.is_symlink() or not path.is_file():
+            return f"{name} is missing"
+        if path.stat().st_size != entry["bytes"] or _sha256(path) != entry["sha256"]:
+            return f"{name} is not as written (size or sha256)"
+    return None
 
 
 def _legacy_complete(path: Path) -> bool:
@@ -299,10 +308,12 @@ def find(value: str, logs_dir: Path, task: str, fw: FrameworkSpec) -> tuple[rund
     if path.is_dir():
         found = latest_complete(fw, path)
         if found is None:
-            broken = ", ".join(c.path.name for c in fw.checkpoints(path))
-            raise LabError(f"{path} holds no complete {fw.name} checkpoint"
-                           + (f" ({broken}: truncated or damaged)" if broken else ""),
-                           f"expected files like {fw.checkpoint_path(path, 100).name}")
+            found_any = fw.checkpoints(path)
+            why = (f" (the newest, {found_any[-1].path.name}: {damage(fw, found_any[-1])})"
+                   if found_any else "")
+            raise LabError(f"{path} holds no complete {fw.name} checkpoint{why}",
+                           f"expected files like {fw.checkpoint_path(path, 100).name} and "
+                           "the files its manifest lists")
         return rundir.open_run(path), found
     if not path.is_file():
         raise LabError(f"checkpoint {path} does not exist",
@@ -311,8 +322,9 @@ def find(value: str, logs_dir: Path, task: str, fw: FrameworkSpec) -> tuple[rund
     if not match:
         raise LabError(f"{path.name} is not a {fw.name} checkpoint name",
                        f"expected a name like {fw.checkpoint_path(path.parent, 100).name}")
-    if not complete(fw, match[0]):
-        raise LabError(f"checkpoint {path} is incomplete (truncated or damaged)",
+    why = damage(fw, match[0])
+    if why is not None:
+        raise LabError(f"checkpoint {path} is incomplete: {why}",
                        "pick another checkpoint, or pass the run dir for its newest complete one")
     return rundir.open_run(path.parent), match[0]
 
