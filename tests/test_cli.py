@@ -21,6 +21,7 @@ from typer.testing import CliRunner
 
 from labcli import __version__
 from labcli.commands.app import app
+from labcli.runs import export
 
 SMALL = ["--num-envs", "4", "--max-iterations", "2", "--set", "agent.n_steps=8",
          "--set", "agent.batch_size=16", "--set", "agent.n_epochs=1",
@@ -87,6 +88,35 @@ def test_export_onnx_runs_in_onnxruntime(logs):
     session = ort.InferenceSession(str(exported / "policy.onnx"))
     actions = session.run(None, {"obs": np.zeros((7, 4), np.float32)})[0]
     assert actions.shape == (7, 1) and np.all(np.abs(actions) <= 1)
+
+
+def test_the_export_check_allows_float32_rounding_of_large_actions(tmp_path):
+    """A normalizer's near-constant input (a pose command's fixed quaternion) turns wide random
+    check observations into actions at the clip: float32 rounds those by more than 1e-5, in
+    torch as in ONNX Runtime, so the check allows 1e-5 of the largest action."""
+    class Policy(torch.nn.Module):  # exports name their input `obs`
+        def __init__(self):
+            super().__init__()
+            self.mlp = torch.nn.Sequential(torch.nn.Linear(36, 256), torch.nn.ELU(),
+                                           torch.nn.Linear(256, 8))
+
+        def forward(self, obs: torch.Tensor) -> torch.Tensor:
+            return self.mlp(obs)
+
+    torch.manual_seed(0)
+    policy = Policy().eval()
+    obs = torch.randn(256, 36) * 100.0
+    with torch.inference_mode():
+        expected = policy(obs).numpy()
+        exact = policy.double()(obs.double()).numpy()
+    assert np.abs(expected).max() > 100.0
+    assert np.abs(expected - exact).max() > 1e-5  # float32's own rounding
+    tolerance = export.check_tolerance(expected)
+    assert np.abs(expected - exact).max() < tolerance
+    assert export.check_tolerance(expected / np.abs(expected).max()) == export.TOLERANCE
+    path = tmp_path / "policy.onnx"
+    export._export_onnx(policy.float(), obs, path, {"task": "t"})
+    assert np.abs(export._run_onnx(path, obs) - expected).max() < tolerance
 
 
 def test_each_export_is_described_beside_it_and_inside_it(logs):
