@@ -272,7 +272,7 @@ def test_a_scripted_grasp_lifts_the_cube_and_the_lift_terms_see_it():
         assert float(rewards["grasping_object"][0]) == 1.0
         assert float(rewards["lifting_object"][0]) == 1.0
         assert float(rewards["object_goal_tracking"][0]) == pytest.approx(
-            1.0 - math.tanh(distance / 0.3), abs=1e-5)
+            1.0 - math.tanh(distance / 0.2), abs=1e-5)
         assert float(rewards["object_goal_tracking_fine_grained"][0]) == pytest.approx(
             1.0 - math.tanh(distance / 0.05), abs=1e-5)
         assert float(rewards["reaching_object"][0]) > 1.0 - math.tanh(0.01 / 0.1)

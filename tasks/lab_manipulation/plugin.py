@@ -41,9 +41,12 @@ def _ppo(network: list[int], learning_rate: float, epochs: int, entropy: float,
 REACH_AGENT = {"network": [64, 64], "learning_rate": 1e-3, "epochs": 8, "entropy": 0.001,
                "iterations": 1000}
 # Isaac Lab's lift agents (lift/config/franka/agents): [256, 128, 64], 5 epochs, lr 1e-4,
-# entropy 0.006, gamma 0.98, 1,500 iterations.
+# entropy 0.006, gamma 0.98, 1,500 iterations; and observations normalized by their running
+# statistics, as mjlab's agents do (Isaac Lab's do not). Without it the arm lifted the cube
+# and held it 10 cm up, under any target, through 3,000 iterations; with it the cube reached
+# its target in 85% of training's episodes after 1,069 (docs/tasks.md).
 LIFT_AGENT = {"network": [256, 128, 64], "learning_rate": 1e-4, "epochs": 5, "entropy": 0.006,
-              "iterations": 1500, "gamma": 0.98}
+              "iterations": 1500, "gamma": 0.98, "normalize": True}
 # mjlab's YAM lift agent (tasks/manipulation/config/yam/rl_cfg.py): [512, 256, 128] with
 # observation normalization, 5 epochs, lr 1e-3, entropy 0.005, 5,000 iterations.
 YAM_LIFT_AGENT = {"network": [512, 256, 128], "learning_rate": 1e-3, "epochs": 5,
