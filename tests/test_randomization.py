@@ -84,6 +84,51 @@ def test_a_resumed_env_steps_with_the_gains_it_had():
     env.close(), twin.close()
 
 
+# Each model event's whole fields, by its name in env.events, as a lab before 2026-11-29 saved
+# them in the env's state (`<event>/values`, an actuator's gains `bias` too).
+WHOLE_FIELDS = {"joint_friction": {"values": "dof_frictionloss"},
+                "joint_damping": {"values": "dof_damping"},
+                "joint_armature": {"values": "dof_armature"},
+                "actuator_gains": {"values": "actuator_gainprm", "bias": "actuator_biasprm"},
+                "add_base_mass": {"values": "body_mass"}, "base_com": {"values": "body_ipos"}}
+FIELDS = ("actuator_gainprm", "actuator_biasprm", "dof_frictionloss", "dof_damping",
+          "dof_armature", "body_mass", "body_ipos")
+
+
+@pytest.mark.parametrize("saved_by", ["this lab", "an older lab"])
+def test_a_saved_state_holds_the_drawn_values_and_resumes_them(saved_by):
+    """The state carries each event's drawn rows, not the model's whole fields (a terrain's
+    thousands of geoms made those 82 MB a state for a G1's foot friction); a state an older lab
+    saved with the whole fields resumes to the same models."""
+    env = go1(4, *GAINS, *JOINTS)
+    for _ in range(3):
+        env.step(torch.zeros(4, 12))
+    state = env.get_state()
+    drawn = {k.removeprefix("task/").removesuffix("/drawn"): v for k, v in state.items()
+             if k.endswith("/drawn")}
+    assert set(drawn) == set(WHOLE_FIELDS)
+    assert not any(k.endswith(("/values", "/bias")) for k in state)
+    assert drawn["joint_damping"].shape == (4, 12)  # the legs' dofs, not the base's 6
+    assert drawn["actuator_gains"].shape == (4, 12, 2)  # each servo's kp and kd
+    assert drawn["add_base_mass"].shape == (4, 1)  # the trunk, of go1's 14 bodies
+    if saved_by == "an older lab":
+        state = {k: v for k, v in state.items() if not k.endswith("/drawn")}
+        for event, saved in WHOLE_FIELDS.items():
+            for name, field in saved.items():
+                state[f"task/{event}/{name}"] = env.sim.model_field(field).clone()
+    twin = make_env("go1-flat", num_envs=4, seed=9, overrides=[*BASE, *GAINS, *JOINTS],
+                    backend="cpu")
+    twin.resume_from(state)
+    twin.reset()
+    for mine, theirs in zip(env.sim.models, twin.sim.models, strict=True):
+        for field in FIELDS:
+            assert (getattr(mine, field) == getattr(theirs, field)).all(), field
+    action = torch.full((4, 12), 0.3)
+    for _ in range(3):
+        torch.testing.assert_close(env.step(action)[0], twin.step(action)[0], rtol=0, atol=0)
+    env.close(), twin.close()
+
+
 @needs_menagerie("unitree_g1")
 def test_a_term_that_names_nothing_it_can_change_is_one_line():
     with pytest.raises(LabError, match="name no hinge or slide joint"):

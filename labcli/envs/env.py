@@ -475,6 +475,10 @@ class LabVecEnv(gym.vector.VectorEnv):
                            ) from None
 
     def set_state(self, state: dict[str, torch.Tensor]) -> None:
+        task_saved = {name.removeprefix(TASK_STATE): value for name, value in state.items()
+                      if name.startswith(TASK_STATE)}
+        state = {**state, **{TASK_STATE + name: value for name, value
+                             in self.task.upgraded_state(task_saved).items()}}
         self.check_state(state)  # all checked before any is changed
         for name, target in self._state_targets().items():
             if name in state:

@@ -149,6 +149,11 @@ class Task:
     def state_restored(self) -> None:
         """Called after `state()`'s tensors were written from a saved state."""
 
+    def upgraded_state(self, saved: dict[str, Any]) -> dict[str, Any]:
+        """`saved` (a saved `state()`) in this lab's names, where an older lab saved some of
+        the tensors differently. The default: as saved."""
+        return saved
+
     def replayed(self) -> None:
         """Called after an env step replayed as a CUDA graph, in which none of the task's
         Python ran: drop what `update()` and the terms keep in Python for the state they last

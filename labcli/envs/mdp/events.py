@@ -4,7 +4,7 @@ place so that they replay inside the CUDA-graphed step."""
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import mujoco
 import torch
@@ -143,7 +143,10 @@ class _ModelEvent:
 
     field: ClassVar[str]
     fields: ClassVar[tuple[str, ...]]  # every field it writes (the sim makes them per env)
-    carried = ("values",)
+    # Its rows' values, not the whole field: a terrain's thousands of geoms made a G1's
+    # per-env friction 82 MB of every saved state.
+    carried = ("drawn",)
+    saved_fields: ClassVar[tuple[str, ...]] = ("values",)  # what a lab before that carried
     # How a draw becomes the value (Isaac Lab's operations): "abs" the draw itself, "add" the
     # model's own value plus it, "scale" the model's own value times it.
     operation = "abs"
@@ -154,6 +157,7 @@ class _ModelEvent:
         self.values = task.sim.model_field(self.field)
         self.rows = torch.tensor(rows, dtype=torch.long, device=self.values.device)
         self.base = self.column().clone()
+        self.drawn = self.base.clone()
         self.draw = Uniform(task, ranges * self.base.shape[1])  # per row its ranges
         self.everyone = torch.ones(task.num_envs, dtype=torch.bool, device=self.values.device)
         if mode == "reset":
@@ -162,16 +166,32 @@ class _ModelEvent:
             self.startup = lambda: self.apply(self.everyone)
 
     def restored(self) -> None:
+        self.write(self.drawn)
         for field in self.fields:
             self.sim.model_changed(field, self.everyone)
 
-    def column(self) -> torch.Tensor:
-        return self.values[:, self.rows]
+    def upgraded_state(self, owner: str, saved: dict[str, Any]) -> dict[str, Any]:
+        """A state saved when the term carried its whole fields (`values`; an actuator's gains
+        `bias` too): its rows' values taken from them."""
+        old = [saved.get(f"{owner}/{name}") for name in self.saved_fields]
+        if f"{owner}/drawn" in saved or not all(isinstance(t, torch.Tensor) for t in old):
+            return saved
+        if any(tuple(t.shape[1:]) != tuple(f.shape[1:]) for t, f in zip(
+                old, self.whole_fields(), strict=True)):
+            return saved  # another model's: the other keys' checks say so
+        return {**saved, f"{owner}/drawn": self.column(*(t.to(self.values) for t in old))}
+
+    def whole_fields(self) -> tuple[torch.Tensor, ...]:
+        return (self.values,)
+
+    def column(self, values: torch.Tensor | None = None) -> torch.Tensor:
+        return (self.values if values is None else values)[:, self.rows]
 
     def apply(self, mask: torch.Tensor) -> None:
-        current = self.column()
+        current = self.drawn
         new = self.new_values(self.draw().to(self.values.dtype).view(current.shape))
-        self.write(torch.where(mask.view(-1, *[1] * (current.dim() - 1)), new, current))
+        torch.where(mask.view(-1, *[1] * (current.dim() - 1)), new, current, out=current)
+        self.write(current)
         for field in self.fields:
             self.sim.model_changed(field, mask)
 
@@ -203,8 +223,8 @@ class randomize_rigid_body_friction(_ModelEvent):  # noqa: N801
     def __init__(self, task: RobotTask, cfg: c.RandomizeFriction):
         super().__init__(task, _geoms_of(task, cfg.bodies), [cfg.friction_range], cfg.mode)
 
-    def column(self) -> torch.Tensor:
-        return self.values[:, self.rows, 0]  # sliding friction
+    def column(self, values: torch.Tensor | None = None) -> torch.Tensor:
+        return (self.values if values is None else values)[:, self.rows, 0]  # sliding friction
 
     def write(self, values: torch.Tensor) -> None:
         self.values[:, self.rows, 0] = values
@@ -271,7 +291,7 @@ class randomize_actuator_gains(_ModelEvent):  # noqa: N801
 
     field = "actuator_gainprm"
     fields = ("actuator_gainprm", "actuator_biasprm")
-    carried = ("values", "bias")
+    saved_fields = ("values", "bias")
     operation = "scale"
 
     def __init__(self, task: RobotTask, cfg: c.RandomizeActuatorGains):
@@ -293,8 +313,14 @@ class randomize_actuator_gains(_ModelEvent):  # noqa: N801
         self.explicit = torch.tensor(explicit, dtype=torch.long, device=self.bias.device)
         super().__init__(task, servos, [cfg.stiffness_range, cfg.damping_range], cfg.mode)
 
-    def column(self) -> torch.Tensor:
-        servos = torch.stack([self.values[:, self.rows, 0], -self.bias[:, self.rows, 2]], dim=-1)
+    def whole_fields(self) -> tuple[torch.Tensor, ...]:
+        return (self.values, self.bias)
+
+    def column(self, values: torch.Tensor | None = None,
+               bias: torch.Tensor | None = None) -> torch.Tensor:
+        values = self.values if values is None else values
+        bias = self.bias if bias is None else bias
+        servos = torch.stack([values[:, self.rows, 0], -bias[:, self.rows, 2]], dim=-1)
         if not len(self.explicit):
             return servos
         motors = torch.stack([self.motors.kp[:, self.explicit], self.motors.kd[:, self.explicit]],

@@ -336,6 +336,12 @@ class RobotTask(Task):
                 **{f"{owner}/{name}": getattr(made, name) for owner, made in self._carriers
                    for name in made.carried}}
 
+    def upgraded_state(self, saved: dict[str, Any]) -> dict[str, Any]:
+        for owner, made in self._carriers:
+            if hasattr(made, "upgraded_state"):
+                saved = made.upgraded_state(owner, saved)
+        return saved
+
     def replayed(self) -> None:
         # Values shared per state (robot.per_state) that an eager read cached after the last
         # Python step would be read again as they were: a cube grasped since read as loose.
