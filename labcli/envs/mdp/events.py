@@ -146,7 +146,8 @@ class _ModelEvent:
     # Its rows' values, not the whole field: a terrain's thousands of geoms made a G1's
     # per-env friction 82 MB of every saved state.
     carried = ("drawn",)
-    saved_fields: ClassVar[tuple[str, ...]] = ("values",)  # what a lab before that carried
+    # What a lab before that carried: the whole fields, by their attributes' names.
+    saved_fields: ClassVar[tuple[str, ...]] = ("values",)
     # How a draw becomes the value (Isaac Lab's operations): "abs" the draw itself, "add" the
     # model's own value plus it, "scale" the model's own value times it.
     operation = "abs"
@@ -176,13 +177,10 @@ class _ModelEvent:
         old = [saved.get(f"{owner}/{name}") for name in self.saved_fields]
         if f"{owner}/drawn" in saved or not all(isinstance(t, torch.Tensor) for t in old):
             return saved
-        if any(tuple(t.shape[1:]) != tuple(f.shape[1:]) for t, f in zip(
-                old, self.whole_fields(), strict=True)):
+        if any(t.shape[1:] != getattr(self, name).shape[1:]
+               for t, name in zip(old, self.saved_fields, strict=True)):
             return saved  # another model's: the other keys' checks say so
         return {**saved, f"{owner}/drawn": self.column(*(t.to(self.values) for t in old))}
-
-    def whole_fields(self) -> tuple[torch.Tensor, ...]:
-        return (self.values,)
 
     def column(self, values: torch.Tensor | None = None) -> torch.Tensor:
         return (self.values if values is None else values)[:, self.rows]
@@ -312,9 +310,6 @@ class randomize_actuator_gains(_ModelEvent):  # noqa: N801
         self.motors = motors
         self.explicit = torch.tensor(explicit, dtype=torch.long, device=self.bias.device)
         super().__init__(task, servos, [cfg.stiffness_range, cfg.damping_range], cfg.mode)
-
-    def whole_fields(self) -> tuple[torch.Tensor, ...]:
-        return (self.values, self.bias)
 
     def column(self, values: torch.Tensor | None = None,
                bias: torch.Tensor | None = None) -> torch.Tensor:
