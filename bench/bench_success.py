@@ -3,11 +3,12 @@ each task should take: on a 2-core laptop (`--backend cpu`) or on one GPU (`--ba
 
   python bench/bench_success.py [--tasks ant,humanoid] [--framework rsl_rl]
                                 [--backend cpu|warp] [--seeds 0,1,2] [--success 0.9]
-                                [--set KEY=VALUE ...] [--json FILE]
+                                [--set KEY=VALUE ...] [--json FILE] [--keep DIR]
 
 Each run is `lab train --task T --framework F --seed S --backend B` as a user runs it (by
 this Python's `-m labcli`), in a throwaway logs dir, one after another; it is stopped (Ctrl-C,
 a checkpoint) once its training has lasted twice the task's goal, else it ends by itself.
+`--keep DIR` keeps each run, under DIR/TASK-sSEED, to be played or exported afterwards.
 `--set` passes a setting on to every run (a variant of the defaults held to the same goals,
 e.g. `--set agent.symmetry_augmentation=true`).
 From its TensorBoard events: the seconds of training (from the run's first event, after
@@ -47,13 +48,14 @@ START_S = 60
 
 
 def train(task: str, framework: str, backend: str, seed: int, success: float,
-          overrides: list[str]) -> dict:
+          overrides: list[str], keep: Path | None = None) -> dict:
     cmd = [sys.executable, "-m", "labcli", "train", "--task", task, "--framework", framework,
            "--seed", str(seed), "--backend", backend,
            *(arg for item in overrides for arg in ("--set", item))]
     limit = 2 * GOALS_S[backend].get(task, 600) + START_S
-    with tempfile.TemporaryDirectory(prefix="bench_success_") as logs:
-        proc = subprocess.Popen(cmd, env={**os.environ, "LAB_LOGS_DIR": logs},
+    with tempfile.TemporaryDirectory(prefix="bench_success_") as scratch:
+        logs = keep / f"{task}-s{seed}" if keep else Path(scratch)
+        proc = subprocess.Popen(cmd, env={**os.environ, "LAB_LOGS_DIR": str(logs)},
                                 stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
         try:
             _, err = proc.communicate(timeout=limit)
@@ -63,7 +65,8 @@ def train(task: str, framework: str, backend: str, seed: int, success: float,
         if proc.returncode not in (0, 130):
             print(f"{shlex.join(cmd)}: exit {proc.returncode}\n{err[-3000:]}", flush=True)
             return {"task": task, "seed": seed, "exit": proc.returncode}
-        (run_dir,) = Path(logs, framework, task).iterdir()
+        # The newest: a kept folder may hold an earlier run of the same seed.
+        run_dir = max(Path(logs, framework, task).iterdir(), key=lambda d: d.stat().st_mtime)
         row = {"task": task, "framework": framework, "seed": seed, "set": overrides,
                **figures(run_dir, success)}
     print(json.dumps(row), flush=True)
@@ -131,10 +134,11 @@ def main() -> None:
     p.add_argument("--set", action="append", default=[], dest="overrides", metavar="KEY=VALUE",
                    help="a setting for every run, as lab train's --set (repeatable)")
     p.add_argument("--json", type=Path, help="write the rows here")
+    p.add_argument("--keep", type=Path, metavar="DIR", help="keep the runs under this folder")
     a = p.parse_args()
     about = machine()
     print(about, flush=True)
-    rows = [train(task, a.framework, a.backend, int(seed), a.success, a.overrides)
+    rows = [train(task, a.framework, a.backend, int(seed), a.success, a.overrides, a.keep)
             for task in a.tasks.split(",") for seed in a.seeds.split(",")]
     report(rows, a.success, GOALS_S[a.backend])
     conclude(rows, {"machine": about}, a.json)
