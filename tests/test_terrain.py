@@ -14,6 +14,7 @@ import torch
 from conftest import needs_menagerie, needs_warp
 from pydantic import ValidationError
 
+from labcli.envs import metrics
 from labcli.envs.mdp import terrain as t
 from labcli.envs.mdp import terrain_model as tm
 
@@ -292,8 +293,31 @@ def test_the_terrain_state_travels_with_the_task_state_and_its_levels_are_logged
     grid = env.task.terrain
     level = grid.levels.double()
     assert torch.equal(figures["terrain/level"], level)
-    # Per type, scaled by its share of the envs: its mean over all envs is the type's mean.
-    assert figures["terrain/level/stairs"].mean() == pytest.approx(float(level[4:].mean()))
+    # Per type, the levels of its envs (the first four flat, the last four stairs) only.
+    assert torch.equal(figures["terrain/level/stairs"][4:], level[4:])
+    assert figures["terrain/level/stairs"][:4].isnan().all()
+
+
+@needs_menagerie("unitree_go1")
+def test_each_terrain_type_s_level_is_the_mean_of_its_own_ended_episodes():
+    env = _go1_on_terrain()
+    grid = env.task.terrain
+    grid.levels.copy_(torch.tensor([0, 1, 0, 1, 2, 2, 1, 1]))
+    # One flat episode and two on stairs time out on the next step; the others go on.
+    env.episode_length.copy_(torch.tensor([99, 0, 0, 0, 99, 99, 0, 0]))
+    env.max_episode_length = 100
+    env.step(torch.zeros(env.action_space.shape))
+    stats = env.pop_stats()
+    assert stats[metrics.EPISODES] == 3
+    assert stats[metrics.TASK_METRIC + "terrain/level"] == pytest.approx(4 / 3)
+    assert stats[metrics.TASK_METRIC + "terrain/level/flat"] == 0.0
+    assert stats[metrics.TASK_METRIC + "terrain/level/stairs"] == 2.0
+    # No stairs episode ends on the next step: its level is not logged, the flat one's is.
+    env.episode_length.copy_(torch.tensor([0, 99, 0, 0, 0, 0, 0, 0]))
+    env.step(torch.zeros(env.action_space.shape))
+    stats = env.pop_stats()
+    assert stats[metrics.TASK_METRIC + "terrain/level/flat"] == 1.0
+    assert metrics.TASK_METRIC + "terrain/level/stairs" not in stats
 
 
 @needs_menagerie("unitree_go1")

@@ -140,10 +140,13 @@ class LabVecEnv(gym.vector.VectorEnv):
         self._weighted = torch.empty(n, k, device=dev)
         # One row per figure that `pop_stats` reports, one column per env (see `_accumulate`),
         # and where each figure goes in it: views made once, each shaped like its figure.
-        self._ended = torch.empty(5 + k + t + m, n, dtype=torch.float64, device=dev)
+        # A task's metrics take two rows each: their sums, and how many ended episodes they
+        # apply to (a NaN figure does not), so that each is the mean of its own episodes.
+        self._ended = torch.empty(5 + k + t + 2 * m, n, dtype=torch.float64, device=dev)
         e = self._ended
         self._ended_figures = (e[0], e[1:2 + k], e[2 + k], e[3 + k], e[4 + k:4 + k + t],
-                               e[4 + k + t], *([e[5 + k + t:]] if m else []))
+                               e[4 + k + t],
+                               *([e[5 + k + t:5 + k + t + m], e[5 + k + t + m:]] if m else []))
         self._stats = torch.zeros(len(e), dtype=torch.float64, device=dev)
         self._all = torch.ones(n, dtype=torch.bool, device=dev)
         # NEXT_STEP: the envs that ended on the last step, to be reset on this one.
@@ -519,7 +522,9 @@ class LabVecEnv(gym.vector.VectorEnv):
         figures = (done, self._episode_sums, self.episode_length, success, terminated,
                    self._none if bad_action is None else bad_action)
         if self.metric_names:
-            figures += (torch.stack(list(self.task.episode_metrics().values())),)
+            figure = torch.stack(list(self.task.episode_metrics().values()))
+            applies = figure.isnan().logical_not_()
+            figures += (figure.nan_to_num(nan=0.0), applies)
         for rows, figure in zip(self._ended_figures, figures, strict=True):
             rows.copy_(figure)
         self._stats.addmv_(self._ended, self._ended_figures[0])
@@ -567,8 +572,11 @@ class LabVecEnv(gym.vector.VectorEnv):
             stats[metrics.TERMINATION + name] = total / count
         stats[metrics.INSTABILITIES] = terminations[-1]
         stats[metrics.NONFINITE_ACTIONS] = values[4 + k + t]
-        for name, total in zip(self.metric_names, values[5 + k + t:], strict=True):
-            stats[metrics.TASK_METRIC + name] = total / count
+        m = len(self.metric_names)
+        totals, counts = values[5 + k + t:5 + k + t + m], values[5 + k + t + m:]
+        for name, total, counted in zip(self.metric_names, totals, counts, strict=True):
+            if counted:
+                stats[metrics.TASK_METRIC + name] = total / counted
         return stats
 
     # internals -------------------------------------------------------------------------------

@@ -185,7 +185,9 @@ class Task:
     def episode_metrics(self) -> dict[str, torch.Tensor]:
         """Figures per env `[num_envs]` about the episode so far (e.g. a command's mean tracking
         error), read when episodes end: their mean over the ended episodes is logged as
-        `Metrics/<name>`. The same names on every call; the default has none."""
+        `Metrics/<name>`. A NaN where a figure does not apply to an env (a level of one terrain
+        type): the mean is over the episodes it applies to, and none is logged while none of
+        those ended. The same names on every call; the default has none."""
         return {}
 
 

@@ -8,7 +8,8 @@ once as `Term(task, cfg)` and called every step, which may also have:
 - `after_step()`: once per step, after its rewards and terminations (advance what the term
   carries from step to step: a command's timer, the feet's air time);
 - `reset(mask)`: after the envs in `mask` were reset (events draw their state here);
-- `metrics()`: figures per env about the episode so far, logged as `Metrics/<term>/<key>`;
+- `metrics()`: figures per env about the episode so far, logged as `Metrics/<term>/<key>`
+  (NaN where one does not apply to an env);
 - `carried`: names of its per-env tensors that carry from step to step (a command, a timer,
   the feet's air time), saved with the env's state and restored in place (`Task.state`), and
   `restored()`, called after they were;

@@ -55,10 +55,9 @@ class TerrainGrid:
         self.task = task
         self._drawn = torch.empty(n, 2, dtype=dtype, device=dev)
         self._command: torch.Tensor | None = None
-        # Per type: which columns are of it, and its share of them (of the envs, as spread).
+        # Per type: which columns are of it.
         self._of_type = {name: torch.tensor([c == name for c in self.columns], device=dev)
                          for name in dict.fromkeys(self.columns)}
-        self._share = {name: self.columns.count(name) / self.cols for name in self._of_type}
 
     def follow_command(self, command: torch.Tensor) -> None:
         """The velocity command `[n, >=2]` whose distance the curriculum asks the envs to walk
@@ -126,10 +125,10 @@ class TerrainGrid:
     def metrics(self) -> dict[str, torch.Tensor]:
         """Each env's level, its row (0 for the easiest), as Isaac Lab's and mjlab's
         `terrain_levels`: as a mean over ended episodes, the curriculum's progress; and per
-        type, scaled by the type's share of the envs, so that its mean over all ended episodes
-        is that type's mean level."""
+        type, the level of the envs of that type (NaN for the others), whose mean is over the
+        episodes of that type."""
         level = self.levels.to(self.walked.dtype)
         out = {"level": level}
         for name, columns in self._of_type.items():
-            out[f"level/{name}"] = level * columns[self.types] / self._share[name]
+            out[f"level/{name}"] = torch.where(columns[self.types], level, torch.nan)
         return out
