@@ -145,8 +145,8 @@ class LabVecEnv(gym.vector.VectorEnv):
         self._ended = torch.empty(5 + k + t + 2 * m, n, dtype=torch.float64, device=dev)
         e = self._ended
         self._ended_figures = (e[0], e[1:2 + k], e[2 + k], e[3 + k], e[4 + k:4 + k + t],
-                               e[4 + k + t],
-                               *([e[5 + k + t:5 + k + t + m], e[5 + k + t + m:]] if m else []))
+                               e[4 + k + t], *([e[5 + k + t:5 + k + t + m]] if m else []))
+        self._metric_counts = e[5 + k + t + m:]
         self._stats = torch.zeros(len(e), dtype=torch.float64, device=dev)
         self._all = torch.ones(n, dtype=torch.bool, device=dev)
         # NEXT_STEP: the envs that ended on the last step, to be reset on this one.
@@ -522,11 +522,13 @@ class LabVecEnv(gym.vector.VectorEnv):
         figures = (done, self._episode_sums, self.episode_length, success, terminated,
                    self._none if bad_action is None else bad_action)
         if self.metric_names:
-            figure = torch.stack(list(self.task.episode_metrics().values()))
-            applies = figure.isnan().logical_not_()
-            figures += (figure.nan_to_num(nan=0.0), applies)
+            figures += (torch.stack(list(self.task.episode_metrics().values())),)
         for rows, figure in zip(self._ended_figures, figures, strict=True):
             rows.copy_(figure)
+        if self.metric_names:
+            sums = self._ended_figures[-1]
+            torch.eq(sums, sums, out=self._metric_counts)  # 1 where it applies: NaN != NaN
+            sums.nan_to_num_(nan=0.0)
         self._stats.addmv_(self._ended, self._ended_figures[0])
 
     def pop_stats(self, reduce: Reduce | None = None) -> dict[str, float]:
