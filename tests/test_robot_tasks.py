@@ -19,7 +19,7 @@ from typer.testing import CliRunner
 from labcli.commands.app import app
 from labcli.envs.env import LabVecEnv
 from labcli.envs.mdp import config as c
-from labcli.envs.mdp import names
+from labcli.envs.mdp import names, sensors
 from labcli.envs.mdp.task import RobotTask
 from labcli.envs.spec import TaskSpec
 from labcli.errors import LabError
@@ -360,3 +360,24 @@ def test_the_config_sets_the_physics_options_over_the_model_s():
     env.close()
     with pytest.raises(LabError, match="cone"):
         make_env("go1-flat", num_envs=2, backend="cpu", overrides=["env.cone=round"])
+
+
+def test_a_term_reading_the_contacts_of_a_body_that_touches_nothing_is_refused():
+    """A contact sensor on a body whose geoms collide with nothing reads zeros forever: a
+    termination that never ends an episode, a penalty never paid."""
+    model = mujoco.MjModel.from_xml_string("""<mujoco><worldbody>
+        <geom name="floor" type="plane" size="1 1 0.1"/>
+        <body name="paired"><freejoint/><geom name="pad" size="0.1" contype="0" conaffinity="0"/>
+          <body name="child" pos="0 0 0.3"><geom size="0.05" contype="0" conaffinity="0"/></body>
+        </body>
+        <body name="colliding" pos="1 0 0"><freejoint/><geom size="0.1"/></body>
+        </worldbody><contact><pair geom1="pad" geom2="floor"/></contact></mujoco>""")
+    sensors.check(model, sensors.contact("paired"), "env.rewards.a")  # through its pair
+    sensors.check(model, sensors.contact("colliding"), "env.rewards.b")
+    sensors.check(model, sensors.self_contacts("paired", 1), "env.rewards.c")  # its subtree's
+    with pytest.raises(LabError) as err:
+        sensors.check(model, sensors.contact("child"), "env.terminations.child_contact")
+    assert err.value.message == (
+        "env.terminations.child_contact reads the contacts of body 'child', but none of its "
+        "geoms touches anything (contype and conaffinity 0, in no contact pair)")
+    assert "env.robot.collisions" in err.value.hint

@@ -16,6 +16,7 @@ from conftest import needs_menagerie
 from lab_locomotion import quadruped
 from lab_locomotion.go1_datasheet import ROBOT as DATASHEET_GO1
 from lab_locomotion.plugin import HERE
+from oneline import assert_one_line_error
 from typer.testing import CliRunner
 
 from labcli.commands.app import app
@@ -432,3 +433,21 @@ def test_both_backends_agree_on_a_short_go1_rollout(extra, tmp_path):
     worst_obs, worst_reward = worst_gaps(cpu, gpu)
     cpu.close(), gpu.close()
     assert worst_obs < 0.05 and worst_reward < 0.05, (worst_obs, worst_reward)
+
+
+def test_a_collision_set_that_leaves_the_trunk_out_is_refused_before_training(tmp_path):
+    """Naming only the feet in env.robot.collisions turns the trunk's collisions off, and
+    go1-flat's base-contact termination with them: one line, before anything is written."""
+    result = lab("train", "--task", "go1-flat", "--framework", "rsl_rl", "--num-envs", "2",
+                 "--max-iterations", "1", "--set",
+                 'env.robot.collisions=[{"bodies": [".*_calf"], "types": ["sphere"]}]',
+                 logs=tmp_path / "logs")
+    assert_one_line_error(result, "env.terminations.base_contact", "body 'trunk'",
+                          "env.robot.collisions")
+    assert not (tmp_path / "logs").exists() or not any((tmp_path / "logs").rglob("*.json"))
+    # Every other geom kept as the model has it: it trains.
+    result = lab("train", "--task", "go1-flat", "--framework", "rsl_rl", "--num-envs", "2",
+                 "--max-iterations", "1", "--set", 'env.robot.collisions=[{"bodies": '
+                 '[".*_calf"], "types": ["sphere"], "condim": 3}, {"bodies": [".*"]}]',
+                 logs=tmp_path / "logs")
+    assert result.exit_code == 0, result.output

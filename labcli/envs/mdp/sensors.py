@@ -13,6 +13,7 @@ import torch
 
 from labcli.envs.mdp import names
 from labcli.envs.mdp.robot import columns as state_columns
+from labcli.errors import LabError
 
 if TYPE_CHECKING:
     from labcli.envs.mdp.task import RobotTask
@@ -53,12 +54,33 @@ class Sensor:
     num: int = 1
 
 
-def check(model: mujoco.MjModel, sensor: Sensor) -> None:
-    """A one-line error (the closest names the model has) if the sensor's target or contact
-    reference is not in `model`: MuJoCo's own compile error is a traceback."""
+def check(model: mujoco.MjModel, sensor: Sensor, reader: str) -> None:
+    """A one-line error if the sensor's target or contact reference is not in `model` (the
+    closest names the model has: MuJoCo's own compile error is a traceback), or if it reads
+    the contacts of a body none of whose geoms touches anything: `reader` (the term's key)
+    would read zeros forever."""
     for target, objtype in ((sensor.target, sensor.objtype), (sensor.ref, sensor.reftype)):
         if target is not None:
             names.resolve_one(model, "body" if objtype == "xbody" else objtype, target)
+    if (sensor.kind == "contact" and sensor.objtype in ("body", "xbody")
+            and not _touches(model, model.body(sensor.target).id, sensor.objtype == "xbody")):
+        raise LabError(f"{reader} reads the contacts of body '{sensor.target}', but none of "
+                       "its geoms touches anything (contype and conaffinity 0, in no contact "
+                       "pair)", "give it an entry in env.robot.collisions, which leaves the "
+                       "bodies it does not name without collisions, or set the term to null")
+
+
+def _touches(model: mujoco.MjModel, body: int, subtree: bool) -> bool:
+    """Whether a geom of `body` (with `subtree`, of any body under it) may touch something."""
+    bodies = {body}
+    if subtree:
+        for b in range(body + 1, model.nbody):  # a parent's id is below its children's
+            if int(model.body_parentid[b]) in bodies:
+                bodies.add(b)
+    paired = {int(g) for g in (*model.pair_geom1, *model.pair_geom2)}
+    return any(int(model.geom_bodyid[g]) in bodies
+               and (model.geom_contype[g] or model.geom_conaffinity[g] or g in paired)
+               for g in range(model.ngeom))
 
 
 def body_names(model: mujoco.MjModel, patterns: Sequence[str]) -> list[str]:

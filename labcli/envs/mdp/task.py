@@ -58,11 +58,13 @@ def impl_of(term: Term) -> Any:
     return refs.resolve(type(term).impl, f"term {type(term).__name__}")
 
 
-def _all_terms(cfg: RobotTaskConfig) -> list[Term]:
-    groups: Sequence[Group] = (cfg.commands, cfg.observations, cfg.rewards, cfg.terminations,
-                               cfg.events, cfg.curriculum, *_critic_extras(cfg))
-    return [cfg.actions, *(t for g in groups for _, t in g.terms()),
-            *([cfg.success] if cfg.success is not None else [])]
+def _all_terms(cfg: RobotTaskConfig) -> list[tuple[str, Term]]:
+    """Every term of `cfg`, with its key (`env.rewards.alive`)."""
+    groups = ("commands", "observations", "rewards", "terminations", "events", "curriculum",
+              *(["critic_extras"] if _critic_extras(cfg) else []))
+    return [("env.actions", cfg.actions),
+            *((f"env.{g}.{name}", t) for g in groups for name, t in getattr(cfg, g).terms()),
+            *([("env.success", cfg.success)] if cfg.success is not None else [])]
 
 
 def _critic_extras(cfg: RobotTaskConfig) -> list[Group]:
@@ -110,11 +112,11 @@ class RobotTask(Task):
         if cfg.terrain is not None:
             terrain_model.apply(spec, cfg.terrain)
         model = spec.compile()
-        needed = [s for term in _all_terms(cfg)
+        needed = [(key, s) for key, term in _all_terms(cfg)
                   for s in getattr(impl_of(term), "sensors", lambda m, t: [])(model, term)]
         if needed:
-            for sensor in needed:
-                sensors.check(model, sensor)
+            for key, sensor in needed:
+                sensors.check(model, sensor, key)
                 sensors.add(spec, sensor)
             model = spec.compile()
         models.set_options(model, cfg)
