@@ -1,6 +1,6 @@
 """MuJoCo models' kinematic trees: which free joints are a robot's floating base, and which
-belong to the free bodies it handles (a cube to lift). MuJoCo only, for the envs and for the
-plain-MuJoCo loop alike."""
+belong to the free bodies it handles (a cube to lift); which bodies lie under a body. MuJoCo
+only, for the envs and for the plain-MuJoCo loop alike."""
 
 from __future__ import annotations
 
@@ -19,3 +19,10 @@ def robot_free_joints(model: mujoco.MjModel) -> list[int]:
              for a in range(model.nu)
              if model.actuator_trntype[a] == mujoco.mjtTrn.mjTRN_JOINT}
     return [j for j in free if int(model.body_rootid[model.jnt_bodyid[j]]) in roots]
+
+
+def in_subtree(model: mujoco.MjModel, body: int, root: int) -> bool:
+    """Whether `body` is `root` or lies under it (a parent's id is below its children's)."""
+    while body > root:
+        body = int(model.body_parentid[body])
+    return body == root

@@ -15,6 +15,7 @@ import torch
 
 from labcli.envs.mdp import names, sensors
 from labcli.errors import LabError
+from labcli.mjtree import in_subtree
 
 if TYPE_CHECKING:
     from labcli.envs.mdp.task import RobotTask
@@ -34,12 +35,6 @@ def _site_sensors(site: str) -> list[sensors.Sensor]:
 def site_names(model: mujoco.MjModel, patterns: Sequence[str]) -> list[str]:
     all_sites = names.all_names(model, "site")
     return [all_sites[i] for i in names.resolve(model, "site", patterns)]
-
-
-def in_subtree(model: mujoco.MjModel, body: int, root: int) -> bool:
-    while body > root:
-        body = int(model.body_parentid[body])
-    return body == root
 
 
 def paired_sites(model: mujoco.MjModel, bodies: Sequence[str], patterns: Sequence[str]

@@ -14,6 +14,7 @@ import torch
 from labcli.envs.mdp import names
 from labcli.envs.mdp.robot import columns as state_columns
 from labcli.errors import LabError
+from labcli.mjtree import in_subtree
 
 if TYPE_CHECKING:
     from labcli.envs.mdp.task import RobotTask
@@ -72,15 +73,13 @@ def check(model: mujoco.MjModel, sensor: Sensor, reader: str) -> None:
 
 def _touches(model: mujoco.MjModel, body: int, subtree: bool) -> bool:
     """Whether a geom of `body` (with `subtree`, of any body under it) may touch something."""
-    bodies = {body}
-    if subtree:
-        for b in range(body + 1, model.nbody):  # a parent's id is below its children's
-            if int(model.body_parentid[b]) in bodies:
-                bodies.add(b)
     paired = {int(g) for g in (*model.pair_geom1, *model.pair_geom2)}
-    return any(int(model.geom_bodyid[g]) in bodies
-               and (model.geom_contype[g] or model.geom_conaffinity[g] or g in paired)
-               for g in range(model.ngeom))
+    for g in range(model.ngeom):
+        owner = int(model.geom_bodyid[g])
+        if (owner == body or subtree and in_subtree(model, owner, body)) and (
+                model.geom_contype[g] or model.geom_conaffinity[g] or g in paired):
+            return True
+    return False
 
 
 def body_names(model: mujoco.MjModel, patterns: Sequence[str]) -> list[str]:

@@ -11,7 +11,7 @@ from labcli.envs.mdp import terrain_model
 from labcli.envs.mdp.robot_model import HOME
 from labcli.envs.render import gl
 from labcli.errors import LabError, first_line
-from labcli.mjtree import robot_free_joints
+from labcli.mjtree import in_subtree, robot_free_joints
 
 WIDTH, HEIGHT = 320, 240
 
@@ -97,14 +97,8 @@ def _positions(model: mujoco.MjModel, root: int, key: str | None = None) -> np.n
     if key is not None and mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_KEY, key) >= 0:
         mujoco.mj_resetDataKeyframe(model, data, model.key(key).id)
     mujoco.mj_kinematics(model, data)
-    under = [b for b in range(root, model.nbody) if _descends(model, b, root)]
+    under = [b for b in range(root, model.nbody) if in_subtree(model, b, root)]
     return data.xpos[under]
-
-
-def _descends(model: mujoco.MjModel, body: int, root: int) -> bool:
-    while body > root:
-        body = int(model.body_parentid[body])
-    return body == root
 
 
 def unavailable() -> None:
