@@ -76,7 +76,7 @@ def _touches(model: mujoco.MjModel, body: int, subtree: bool) -> bool:
     paired = {int(g) for g in (*model.pair_geom1, *model.pair_geom2)}
     for g in range(model.ngeom):
         owner = int(model.geom_bodyid[g])
-        if (owner == body or subtree and in_subtree(model, owner, body)) and (
+        if (in_subtree(model, owner, body) if subtree else owner == body) and (
                 model.geom_contype[g] or model.geom_conaffinity[g] or g in paired):
             return True
     return False
