@@ -21,6 +21,11 @@ if "MENAGERIE_ROOT" not in os.environ and UNPACK.is_file():
         [str(UNPACK)], check=True, capture_output=True, text=True).stdout.strip()
 
 
+# The test workers share the machine's cores: each training's update (and each `lab` the tests
+# start) on one torch thread, as two trainings sharing a laptop should run (docs/frameworks.md).
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+
+
 # The key that signs sweep state (labcli/runs/sweep_state.py) is the tests' own, not the
 # user's: one per test session.
 if "LAB_CONFIG_DIR" not in os.environ:

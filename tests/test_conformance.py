@@ -18,7 +18,8 @@ from labcli.envs.env import LabVecEnv
 from labcli.errors import LabError
 from labcli.plugins.hookspecs import hookimpl
 from labcli.plugins.policy import Policy
-from labcli.runs import training
+from labcli.runs import session, training
+from labcli.runs.ranks import Ranks
 
 FRAMEWORKS = ["sb3", "sb3_sac", "sb3_td3", "rsl_rl", "skrl", "skrl_sac", "skrl_td3", "rl_games"]
 
@@ -93,6 +94,7 @@ def test_training_improves_the_return(name, tmp_path):
 @pytest.mark.parametrize("name", FRAMEWORKS)
 def test_the_update_runs_on_half_the_runs_threads_and_the_rollout_on_one(
         name, tmp_path, monkeypatch):
+    monkeypatch.delenv("OMP_NUM_THREADS", raising=False)
     threads: dict[str, set[int]] = {"env step": set(), "backward": set()}
     step, backward = LabVecEnv.step, torch.autograd.backward
 
@@ -112,6 +114,20 @@ def test_the_update_runs_on_half_the_runs_threads_and_the_rollout_on_one(
                    overrides=[*SMALL[name], "env.threads=6"], console=Console(file=io.StringIO()))
     assert threads == {"env step": {1}, "backward": {3}}
     assert torch.get_num_threads() == before
+
+
+@pytest.mark.parametrize(("physics", "ranks", "omp", "expected"), [
+    (16, 1, None, 8), (6, 1, None, 3), (3, 1, None, 2), (2, 1, None, 2), (1, 1, None, 1),
+    (2, 1, "1", 1), (16, 1, "4,2", 4), (16, 1, "", 8), (16, 1, "many", 8), (16, 1, "0", 8),
+    (None, 2, None, 2), (None, 4, None, 1)])
+def test_update_threads_are_half_the_physics_both_of_two_and_omp_num_threads_at_most(
+        physics, ranks, omp, expected, monkeypatch):
+    monkeypatch.delenv("OMP_NUM_THREADS", raising=False)
+    if omp is not None:
+        monkeypatch.setenv("OMP_NUM_THREADS", omp)
+    monkeypatch.setattr(session, "cores", lambda: 4)  # the host of a run without env.threads
+    env = dataclasses.make_dataclass("Env", [("threads", int | None)])(physics)
+    assert session.update_threads(env, Ranks(local_world_size=ranks, world_size=ranks)) == expected
 
 
 def test_check_framework_runs_every_check(tmp_path):

@@ -7,6 +7,7 @@ from __future__ import annotations
 import contextlib
 import errno
 import math
+import os
 import shlex
 import sys
 import threading
@@ -315,11 +316,23 @@ def _pipeline(fw: Framework, cfg: AgentConfig, video: VideoSettings | None,
 
 def update_threads(env: Any, ranks: Ranks) -> int:
     """Half the cores this run's physics may use (its threads, or its rank's share of the
-    host): on 16 cores the update on 8 threads made RSL-RL's cartpole train at 2.1x (1,024
-    envs) and 2.6x (4,096) the steps/s of one, its humanoid at 2.6x (1,024); on all 16 threads
-    skrl's cartpole slowed to 0.68x. Half of 2 cores is the one thread measured best there."""
-    threads = getattr(env, "threads", None)  # the cpu backend's: its pool's, or its shards'
-    return max(1, (threads or cores() // ranks.local_world_size) // 2)
+    host), two where there are two or three, and no more than OMP_NUM_THREADS where it is set.
+    On 16 cores the update on 8 threads made RSL-RL's cartpole train at 2.1x (1,024 envs) and
+    2.6x (4,096) the steps/s of one, its humanoid at 2.6x (1,024); on all 16 skrl's cartpole
+    slowed to 0.68x. On 2 cores both made ant and humanoid train at 1.1-1.5x the steps/s of
+    one; but two trainings sharing them then run four update threads that contend (each at half
+    its speed), which OMP_NUM_THREADS=1 avoids."""
+    physics = getattr(env, "threads", None) or max(1, cores() // ranks.local_world_size)
+    return min(max(min(2, physics), physics // 2), _omp_threads() or physics)
+
+
+def _omp_threads() -> int | None:
+    """OMP_NUM_THREADS's count (its first level's), or None where it is unset or not one."""
+    try:
+        count = int(os.environ.get("OMP_NUM_THREADS", "").split(",")[0])
+    except ValueError:
+        return None
+    return count if count > 0 else None
 
 
 @contextlib.contextmanager
