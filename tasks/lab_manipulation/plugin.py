@@ -44,10 +44,11 @@ def _ppo(network: list[int], learning_rate: float, epochs: int, entropy: float,
 # Isaac Lab's reach agents (reach/config/franka/agents): [64, 64], 8 epochs, lr 1e-3, 1,000
 # iterations; the entropy of its UR10's (0.01), not its Franka's (0.001), with which the hand
 # settled at 76-88% of its poses on one GPU (the yaws that need the wrist near a limit left
-# out) where 0.01 reached 90% after 23 s. On 2 cores 1,024 envs for 400 iterations: 256 for
-# 1,000 ended at 85% in the same time (docs/benchmarks.md).
+# out) where 0.01 reached 90% after 18-23 s. On 2 cores 2,048 envs for 200 iterations (90%
+# after a median 508 s, 2 seeds of 3); 1,024 for 400 got there on 1 seed of 3, and 256 for
+# 1,000 not on its one (docs/benchmarks.md).
 REACH_AGENT = {"network": [64, 64], "learning_rate": 1e-3, "epochs": 8, "entropy": 0.01,
-               "iterations": 1000, "cpu_envs": 1024, "cpu_iterations": 400}
+               "iterations": 1000, "cpu_envs": 2048, "cpu_iterations": 200}
 # Isaac Lab's lift agents (lift/config/franka/agents): [256, 128, 64], 5 epochs, lr 1e-4,
 # entropy 0.006, gamma 0.98, 1,500 iterations.
 LIFT_AGENT = {"network": [256, 128, 64], "learning_rate": 1e-4, "epochs": 5, "entropy": 0.006,
