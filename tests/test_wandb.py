@@ -25,7 +25,7 @@ def lab(*args: str, logs: Path, **env: str):
 
 def offline_runs(run_dir: Path, run_id: str) -> list[Path]:
     """The W&B run's files of each session (training, resume, export), oldest first."""
-    return [next(d.glob("run-*.wandb"))
+    return [wandb_records.finished(d)
             for d in sorted(run_dir.glob(f"wandb/offline-run-*-{run_id}"))]
 
 

@@ -5,8 +5,10 @@ record a 7-byte header (crc32c, length, type) and a chunk (whole, or first/middl
 from __future__ import annotations
 
 import struct
+import time
 from pathlib import Path
 
+from google.protobuf.message import DecodeError
 from wandb.proto import wandb_internal_pb2
 
 BLOCK, HEADER = 32768, 7
@@ -40,6 +42,22 @@ def records(path: Path) -> list[wandb_internal_pb2.Record]:
         record.ParseFromString(chunk)
         out.append(record)
     return out
+
+
+def finished(run_dir: Path, timeout_s: float = 30.0) -> Path:
+    """The run file in an offline run's directory once it holds the run's exit record, its last:
+    `run.finish()` returns before W&B's service process has written it all."""
+    deadline = time.monotonic() + timeout_s
+    while True:
+        path = next(run_dir.glob("run-*.wandb"), None)
+        try:
+            if path and any(r.WhichOneof("record_type") == "exit" for r in records(path)):
+                return path
+        except (AssertionError, DecodeError):  # not yet its header, or a record half written
+            pass
+        if time.monotonic() > deadline:
+            raise AssertionError(f"{run_dir} holds no finished run file after {timeout_s:g} s")
+        time.sleep(0.05)
 
 
 def of_type(path: Path, kind: str) -> list:
