@@ -21,9 +21,7 @@ import mujoco
 import numpy as np
 import torch
 
-from labcli.envs.env import LabVecEnv
-from labcli.plugins import registry
-from labcli.runs import config as configs
+from labcli.gym import make_env
 
 SAMPLE_EVERY = 5
 REPORT_EVERY = 20
@@ -32,11 +30,11 @@ REPORT_EVERY = 20
 def hardest_states(task: str, sets: list[str], envs: int, steps: int, count: int):
     """The task's model and config, and the `count` sampled (qpos, qvel, ctrl) with the most
     constraint rows, most first."""
-    spec = registry.get_task(task)
-    layers = [{"num_envs": envs, "threads": 1}, configs.parse_set(sets)["env"]]
-    cfg = configs.build(spec.config_class, "env", layers)
-    env = LabVecEnv(spec, cfg, backend="cpu", device="cpu", seed=0)
-    model = spec.task_class.build_model(cfg, spec.model)  # the model both engines are given
+    # One thread: one env of all of them, not shards, whose state this reads.
+    env = make_env(task, envs, backend="cpu", overrides=sets, threads=1)
+    cfg = env.cfg
+    # A fresh build, the model both engines are given (the cpu backend's own has its options).
+    model = env.task_spec.task_class.build_model(cfg, env.task_spec.model)
     data = mujoco.MjData(model)
     actions = torch.Generator().manual_seed(0)
     samples = []
