@@ -213,6 +213,19 @@ def test_mismatched_sizes_raise_lab_error(trained):
     assert "\n" not in str(err.value)
 
 
+def test_a_checkpoint_naming_rsl_rl_s_own_distribution_still_plays(tmp_path, trained):
+    saved = torch.load(trained.run.dir / "model_3.pt", weights_only=True)
+    distribution = saved["infos"][INFO_KEY]["actor"]["distribution_cfg"]
+    assert distribution["class_name"] == "lab_rsl_rl.distribution:GaussianDistribution"
+    distribution["class_name"] = "GaussianDistribution"  # as runs of earlier versions of lab
+    torch.save(saved, tmp_path / "model_3.pt")
+    obs = torch.randn(16, 4)
+    fw, cfg = RslRlFramework(SPEC), SPEC.agent_config_class()
+    new = fw.load_policy(trained.run.dir / "model_3.pt", make_env(), cfg)
+    old = fw.load_policy(tmp_path / "model_3.pt", make_env(), cfg)
+    torch.testing.assert_close(old(obs), new(obs))
+
+
 @pytest.mark.parametrize("content", [b"not a checkpoint", None, "foreign", "plain rsl_rl",
                                      "other class"])
 def test_unreadable_checkpoints_raise_lab_error(tmp_path, trained, content):

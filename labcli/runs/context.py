@@ -349,8 +349,10 @@ class EpisodesSinceSave:
 
 
 def _finite(module: nn.Module) -> bool:
-    return all(bool(torch.isfinite(t).all()) for t in module.state_dict().values()
-               if t.is_floating_point())
+    # One read-back for the whole module, not one per tensor (a GPU sync each).
+    flags = [torch.isfinite(t).all() for t in module.state_dict().values()
+             if t.is_floating_point()]
+    return not flags or bool(torch.stack(flags).all())
 
 
 def physics_summary(overflows: Mapping[str, float], mujoco_warnings: int,

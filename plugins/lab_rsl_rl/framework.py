@@ -31,7 +31,9 @@ from labcli.plugins.policy import (
 # actor without the run's config under this key of its "infos".
 INFO_KEY = "lab"
 INFO_KEYS = {"observation_size", "action_size", "actor"}
-MODEL, DISTRIBUTION = "MLPModel", "GaussianDistribution"  # the classes this plugin writes
+MODEL, DISTRIBUTION = "MLPModel", "lab_rsl_rl.distribution:GaussianDistribution"  # it writes
+# Older runs name RSL-RL's own class, whose actor is the same (only its sampling differs).
+DISTRIBUTIONS = {DISTRIBUTION, "GaussianDistribution"}
 
 
 def runner_config(cfg: RslRlPpoConfig, world_size: int = 1,
@@ -256,9 +258,9 @@ def _actor_kwargs(checkpoint: Path, actor: dict[str, Any]) -> dict[str, Any]:
     kwargs = dict(actor)
     distribution = kwargs.get("distribution_cfg") or {}
     if (kwargs.pop("class_name", None) != MODEL
-            or distribution.get("class_name", DISTRIBUTION) != DISTRIBUTION):
+            or distribution.get("class_name", DISTRIBUTION) not in DISTRIBUTIONS):
         raise LabError(f"checkpoint {checkpoint.name} has an actor other than a {MODEL} with a "
-                       f"{DISTRIBUTION}", "pick a checkpoint written by lab's rsl_rl plugin")
+                       "GaussianDistribution", "pick a checkpoint written by lab's rsl_rl plugin")
     return kwargs
 
 
