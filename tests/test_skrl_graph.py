@@ -110,6 +110,7 @@ def assert_same(eager: PPO, ours: LabSkrlPPO, exact: bool) -> None:
     {"value_clip": 0.0, "entropy_loss_scale": 0.01, "grad_norm_clip": 0.0},
     {"learning_rate_scheduler": None, "learning_rate_scheduler_kwargs": {}},
     WITH_STATES,
+    {"rewards_shaper": lambda rewards, timestep, timesteps: 0.6 * rewards},
 ])
 def test_lab_skrl_ppo_updates_as_skrl_does(device, settings):
     eager, ours = agents(device, **settings)
@@ -125,6 +126,43 @@ def test_lab_skrl_ppo_updates_as_skrl_does(device, settings):
         learning_rates.add(learning_rate(eager))
     if settings.get("learning_rate_scheduler", KLAdaptiveLR):
         assert len(learning_rates) > 1, "the adaptive learning rate never moved: nothing compared"
+
+
+@pytest.mark.parametrize("device", DEVICES)
+@pytest.mark.parametrize("settings", [{}, WITH_STATES, {
+    "rewards_shaper": lambda rewards, timestep, timesteps: 0.6 * rewards}])
+def test_time_outs_are_bootstrapped_as_skrl_does_without_reading_the_device(device, settings):
+    eager, ours = agents(device, **settings)
+    gen = torch.Generator(device=device).manual_seed(0)
+    def draw(size: int) -> torch.Tensor | None:
+        return (None if size == STATES and "state_preprocessor" not in settings
+                else torch.randn(ENVS, size, generator=gen, device=device))
+
+    for step, timed_out in enumerate([0.0, 0.3]):  # a step without time-outs, then one with
+        obs, states, next_obs, next_states = draw(OBS), draw(STATES), draw(OBS), draw(STATES)
+        rewards = torch.randn(ENVS, 1, generator=gen, device=device)
+        truncated = torch.rand(ENVS, 1, generator=gen, device=device) < timed_out
+        for alg in (eager, ours):
+            torch.manual_seed(step)  # the same action samples
+            with torch.no_grad():
+                actions, _ = alg.act(obs, states, timestep=step, timesteps=STEPS)
+            if alg is ours and device == "cuda":
+                torch.cuda.synchronize()
+                torch.cuda.set_sync_debug_mode("error")
+            try:
+                alg.record_transition(
+                    observations=obs, states=states, actions=actions, rewards=rewards.clone(),
+                    next_observations=next_obs, next_states=next_states,
+                    terminated=torch.zeros_like(truncated), truncated=truncated, infos={},
+                    timestep=step, timesteps=STEPS)
+            finally:
+                if device == "cuda":
+                    torch.cuda.set_sync_debug_mode("default")
+    got, expected = (alg.memory.get_tensor_by_name("rewards")[:2] for alg in (ours, eager))
+    torch.testing.assert_close(got, expected, rtol=0, atol=0)
+    shaper = settings.get("rewards_shaper") or (lambda r, t, n: r)
+    added = expected[1] - shaper(rewards, 1, STEPS)  # the bootstrap skrl added at the time-outs
+    assert truncated.any() and (added[truncated] != 0).all() and (added[~truncated] == 0).all()
 
 
 @pytest.mark.parametrize("device", DEVICES)

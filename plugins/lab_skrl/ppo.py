@@ -109,6 +109,30 @@ class LabSkrlPPO(PPO):
             for group in self.optimizer.param_groups:
                 group["lr"] = lr
 
+    def record_transition(self, **transition: Any) -> None:
+        """skrl's, with its time-out bootstrap added at every step. skrl adds it under `if
+        truncated.any()`, which reads the device back at every env step; the same sum (nothing
+        added where no env timed out) waits for nothing."""
+        cfg = self.cfg
+        if not (self.training and cfg.time_limit_bootstrap):
+            super().record_transition(**transition)
+            return
+        rewards = transition["rewards"]
+        if cfg.rewards_shaper is not None:  # skrl shapes the rewards before the bootstrap
+            rewards = cfg.rewards_shaper(rewards, transition["timestep"], transition["timesteps"])
+        with torch.no_grad():
+            next_values, _ = self.value.act({
+                "observations": self._observation_preprocessor(transition["next_observations"]),
+                "states": self._state_preprocessor(transition["next_states"])}, role="value")
+            next_values = self._value_preprocessor(next_values, inverse=True)
+        bootstrap = cfg.discount_factor * next_values * transition["truncated"]
+        transition["rewards"] = rewards + bootstrap
+        shaper, cfg.rewards_shaper, cfg.time_limit_bootstrap = cfg.rewards_shaper, None, False
+        try:  # skrl's own shaping and bootstrap off: done above
+            super().record_transition(**transition)
+        finally:
+            cfg.rewards_shaper, cfg.time_limit_bootstrap = shaper, True
+
     def update(self, *, timestep: int, timesteps: int) -> None:
         with torch_threads(self.device, self.update_threads):
             self._update(timestep=timestep, timesteps=timesteps)
