@@ -27,6 +27,8 @@ ACTION_SPACE = gym.spaces.Box(-1.0, 1.0, (ACTIONS,))
 STATE_SPACE = gym.spaces.Box(-np.inf, np.inf, (STATES,))
 WITH_STATES = {"state_preprocessor": RunningStandardScaler,
                "state_preprocessor_kwargs": {"size": STATE_SPACE}}
+# Rewards scaled before skrl's time-out bootstrap, as lab's reward_scale does.
+SHAPED = {"rewards_shaper": lambda rewards, timestep, timesteps: 0.6 * rewards}
 
 
 def agent(cls: type[PPO], device: str, **settings) -> PPO:
@@ -110,7 +112,7 @@ def assert_same(eager: PPO, ours: LabSkrlPPO, exact: bool) -> None:
     {"value_clip": 0.0, "entropy_loss_scale": 0.01, "grad_norm_clip": 0.0},
     {"learning_rate_scheduler": None, "learning_rate_scheduler_kwargs": {}},
     WITH_STATES,
-    {"rewards_shaper": lambda rewards, timestep, timesteps: 0.6 * rewards},
+    SHAPED,
 ])
 def test_lab_skrl_ppo_updates_as_skrl_does(device, settings):
     eager, ours = agents(device, **settings)
@@ -129,8 +131,7 @@ def test_lab_skrl_ppo_updates_as_skrl_does(device, settings):
 
 
 @pytest.mark.parametrize("device", DEVICES)
-@pytest.mark.parametrize("settings", [{}, WITH_STATES, {
-    "rewards_shaper": lambda rewards, timestep, timesteps: 0.6 * rewards}])
+@pytest.mark.parametrize("settings", [{}, WITH_STATES, SHAPED])
 def test_time_outs_are_bootstrapped_as_skrl_does_without_reading_the_device(device, settings):
     eager, ours = agents(device, **settings)
     gen = torch.Generator(device=device).manual_seed(0)
