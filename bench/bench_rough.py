@@ -16,7 +16,8 @@
   sitting, the pause between them not counted): seconds of training until the mean terrain
   level (`Metrics/terrain/level`, the row: 0 to 9) and the success rate were first both at
   least --level and --success, their values after 5, 10 and 15 minutes and at the end, and the
-  median training steps/s; with --mjlab-log, a console log of mjlab's own `train` (RSL-RL's
+  median training steps/s, and at the end the level per terrain type and the share of
+  episodes each termination ended; with --mjlab-log, a console log of mjlab's own `train` (RSL-RL's
   "Steps per second" lines) run in the same machine start, and the ratio to its median.
 """
 
@@ -97,6 +98,12 @@ def at(series: list[tuple[float, int, float]], seconds: float) -> float | None:
     return before[-1] if before else None
 
 
+def last_values(parts: list[dict], prefix: str) -> dict[str, float]:
+    """The last value of every tag under `prefix`, by the rest of its name."""
+    tags = sorted({tag for part in parts for tag in part if tag.startswith(prefix)})
+    return {tag.removeprefix(prefix): joined(parts, tag)[-1][2] for tag in tags}
+
+
 def report(run_dir: Path, level: float, success: float, mjlab_log: Path | None) -> dict:
     parts = sittings(run_dir)
     levels, successes = joined(parts, metrics.TERRAIN_LEVEL), joined(parts, metrics.SUCCESS_RATE)
@@ -111,7 +118,10 @@ def report(run_dir: Path, level: float, success: float, mjlab_log: Path | None) 
            "reached_steps": reached[1] if reached else None,
            "marks": {m: (at(levels, 60 * m), at(successes, 60 * m)) for m in MARKS_MIN},
            "final": (levels[-1][2] if levels else None,
-                     successes[-1][2] if successes else None)}
+                     successes[-1][2] if successes else None),
+           # Where the mean hides it: each terrain type's level, and what ended the episodes.
+           "final_by_type": last_values(parts, metrics.TERRAIN_LEVEL + "/"),
+           "final_ends": last_values(parts, metrics.TERMINATION)}
     print(f"{run_dir}: {row['sittings']} sitting(s), {row['training_s'] or 0:.0f} s of "
           f"training, {row['steps_per_s'] or 0:,.0f} steps/s")
     when = (f"after {row['reached_s']:.0f} s ({row['reached_steps']:,} steps)"
@@ -121,6 +131,11 @@ def report(run_dir: Path, level: float, success: float, mjlab_log: Path | None) 
         if lv is not None:
             print(f"after {m} min: mean level {lv:.2f}, success {sr:.2f}")
     print(f"at the end: mean level {row['final'][0]:.2f}, success {row['final'][1]:.2f}")
+    if row["final_by_type"]:
+        print("  levels: " + ", ".join(f"{k} {v:.1f}" for k, v in row["final_by_type"].items()))
+    if row["final_ends"]:
+        print("  episodes ended by: " + ", ".join(f"{k} {v:.0%}"
+                                                  for k, v in row["final_ends"].items()))
     if mjlab_log is not None:
         theirs = [float(x) for x in re.findall(r"Steps per second:\s*([\d.]+)",
                                                mjlab_log.read_text(errors="replace"))]

@@ -1,0 +1,65 @@
+"""bench/bench_rough.py's report, read from TensorBoard events written here: when the level and
+success goal was first met, over a run resumed in two sittings, and what the mean hides."""
+
+from __future__ import annotations
+
+import importlib.util
+import time
+from pathlib import Path
+
+import pytest
+from torch.utils.tensorboard import SummaryWriter
+
+from labcli.envs import metrics
+
+BENCH = Path(__file__).parents[1] / "bench" / "bench_rough.py"
+
+
+@pytest.fixture(scope="module")
+def bench_rough():
+    spec = importlib.util.spec_from_file_location("bench_rough", BENCH)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def sitting(run_dir: Path, start: float, rows: list[tuple[float, int, dict[str, float]]],
+            monkeypatch: pytest.MonkeyPatch) -> None:
+    """An events file of one sitting begun at `start` (its first event, which the writer stamps
+    with the clock's time): at `start + t` s, step `step`, the scalars given."""
+    with monkeypatch.context() as clock:
+        clock.setattr(time, "time", lambda: start)
+        writer = SummaryWriter(str(run_dir), filename_suffix=f".{start:.0f}")
+    for t, step, values in rows:
+        for tag, value in values.items():
+            writer.add_scalar(tag, value, step, walltime=start + t)
+    writer.close()
+
+
+def test_the_report_joins_sittings_and_names_each_terrain_type_and_cause(tmp_path, bench_rough,
+                                                                         monkeypatch):
+    level, success = metrics.TERRAIN_LEVEL, metrics.SUCCESS_RATE
+    stairs, rough = f"{level}/stairs", f"{level}/rough"
+    falls, unstable = f"{metrics.TERMINATION}base_contact", f"{metrics.TERMINATION}unstable"
+    now = time.time()
+    sitting(tmp_path, now, [
+        (0, 1, {level: 2.0, success: 0.0, stairs: 2.0, rough: 2.0, falls: 0.9}),
+        (200, 100, {level: 4.0, success: 0.5, stairs: 5.0, rough: 3.0, falls: 0.3}),
+        (400, 200, {level: 5.0, success: 0.9, stairs: 6.0, rough: 4.0, falls: 0.2}),
+    ], monkeypatch)
+    # Resumed an hour later: the pause is not training.
+    sitting(tmp_path, now + 3600, [
+        (0, 201, {level: 5.5, success: 0.85, stairs: 6.5, rough: 4.5, falls: 0.2,
+                  unstable: 0.01}),
+        (300, 300, {level: 6.5, success: 0.8, stairs: 7.0, rough: 6.0, falls: 0.1,
+                    unstable: 0.05}),
+    ], monkeypatch)
+    row = bench_rough.report(tmp_path, level=6.0, success=0.8, mjlab_log=None)
+    assert row["sittings"] == 2
+    assert row["training_s"] == pytest.approx(700)
+    assert row["reached_s"] == pytest.approx(700) and row["reached_steps"] == 300
+    assert row["marks"][5] == (4.0, 0.5)  # at 300 s: the value logged at 200 s
+    assert row["marks"][10] == pytest.approx((5.5, 0.85))  # at 600 s: the second sitting's first
+    assert row["final"] == pytest.approx((6.5, 0.8))
+    assert row["final_by_type"] == {"rough": 6.0, "stairs": 7.0}
+    assert row["final_ends"] == pytest.approx({"base_contact": 0.1, "unstable": 0.05})
