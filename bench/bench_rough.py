@@ -17,8 +17,9 @@
   level (`Metrics/terrain/level`, the row: 0 to 9) and the success rate were first both at
   least --level and --success, their values after 5, 10 and 15 minutes and at the end, and the
   median training steps/s, and at the end the level per terrain type and the share of
-  episodes each termination ended; with --mjlab-log, a console log of mjlab's own `train` (RSL-RL's
-  "Steps per second" lines) run in the same machine start, and the ratio to its median.
+  episodes each termination ended; with --mjlab-log, a console log of mjlab's own `train`
+  (RSL-RL's "Steps per second" lines) run in the same machine start, and the ratio to its
+  median.
 """
 
 from __future__ import annotations
