@@ -5,12 +5,14 @@ and the host's reads of the GPU, over iterations of `lab train --backend warp`.
                                  [--warmup 20] [--iterations 10] [--top 12]
 
 An iteration cannot take less than its kernels' time on the GPU; what it takes beyond that is
-the GPU waiting for the host: for its launches, and after each read of the GPU (`.item()`, `if
-tensor`, a copy to the host), which waits for all the work queued so far, the GPU idles while
-the host launches the next. Printed per iteration: the wall seconds (the iterations before the
-profiled ones, without the profiler's cost), the kernels' seconds and their share of the wall
-time, the host's reads of the GPU and its waits, then the kernels and host ops that took the
-most time. Needs CUDA.
+the GPU idle: waiting for the host's launches; after each read of the GPU (`.item()`, `if
+tensor`, a copy to the host), which waits for all the work queued so far, while the host
+launches the next; or between its own short kernels, each of which costs it microseconds to
+start, in a CUDA graph too (then the host is ahead: its launches wait on "Command Buffer
+Full"). Printed per iteration: the wall seconds (the iterations before the profiled ones,
+without the profiler's cost), the kernels' seconds and their share of the wall time, the host's
+reads of the GPU and its waits, then the kernels and host ops that took the most time. Needs
+CUDA.
 """
 
 from __future__ import annotations
