@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
 import subprocess
 from collections.abc import Callable, Iterator
@@ -32,6 +33,23 @@ if "LAB_CONFIG_DIR" not in os.environ:
     import tempfile
 
     os.environ["LAB_CONFIG_DIR"] = tempfile.mkdtemp(prefix="lab-test-config-")
+
+
+@contextlib.contextmanager
+def no_device_waits(device: str) -> Iterator[None]:
+    """Inside, on CUDA, an op that makes the host wait for the GPU raises a RuntimeError
+    (torch's sync debug mode), once the work queued before is done; elsewhere nothing."""
+    import torch
+
+    if torch.device(device).type != "cuda":
+        yield
+        return
+    torch.cuda.synchronize()
+    torch.cuda.set_sync_debug_mode("error")
+    try:
+        yield
+    finally:
+        torch.cuda.set_sync_debug_mode("default")
 
 
 def needs_menagerie(robot: str) -> pytest.MarkDecorator:

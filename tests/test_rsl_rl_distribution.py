@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import pytest
 import torch
+from conftest import no_device_waits
 from lab_rsl_rl.distribution import GaussianDistribution
 from rsl_rl.modules import GaussianDistribution as RslRlGaussian
 
@@ -53,11 +54,7 @@ def test_sampling_does_not_wait_for_the_gpu():
     mean = torch.zeros(4096, 3, device="cuda")
     for dist in (theirs, ours):
         dist.update(mean)
-    torch.cuda.synchronize()
-    torch.cuda.set_sync_debug_mode("error")
-    try:
+    with no_device_waits("cuda"):
         with pytest.raises(RuntimeError, match="synchroniz"):
             theirs.sample()  # RSL-RL's torch.normal checks its std on the host
         ours.sample()
-    finally:
-        torch.cuda.set_sync_debug_mode("default")

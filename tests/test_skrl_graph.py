@@ -5,12 +5,14 @@ and load; on the CPU the same with the library's update and a fused Adam."""
 
 from __future__ import annotations
 
+import contextlib
 import copy
 
 import gymnasium as gym
 import numpy as np
 import pytest
 import torch
+from conftest import no_device_waits
 from lab_skrl.framework import Actor, Critic
 from lab_skrl.ppo import LabSkrlPPO
 from skrl.agents.torch.ppo import PPO, PPO_CFG
@@ -147,18 +149,12 @@ def test_time_outs_are_bootstrapped_as_skrl_does_without_reading_the_device(devi
             torch.manual_seed(step)  # the same action samples
             with torch.no_grad():
                 actions, _ = alg.act(obs, states, timestep=step, timesteps=STEPS)
-            if alg is ours and device == "cuda":
-                torch.cuda.synchronize()
-                torch.cuda.set_sync_debug_mode("error")
-            try:
+            with no_device_waits(device) if alg is ours else contextlib.nullcontext():
                 alg.record_transition(
                     observations=obs, states=states, actions=actions, rewards=rewards.clone(),
                     next_observations=next_obs, next_states=next_states,
                     terminated=torch.zeros_like(truncated), truncated=truncated, infos={},
                     timestep=step, timesteps=STEPS)
-            finally:
-                if device == "cuda":
-                    torch.cuda.set_sync_debug_mode("default")
     got, expected = (alg.memory.get_tensor_by_name("rewards")[:2] for alg in (ours, eager))
     torch.testing.assert_close(got, expected, rtol=0, atol=0)
     shaper = settings.get("rewards_shaper") or (lambda r, t, n: r)
