@@ -31,6 +31,7 @@ import re
 import signal
 import statistics
 import subprocess
+import sys
 import tempfile
 from pathlib import Path
 
@@ -61,7 +62,8 @@ def train(task: str, logs: Path, seconds: float | None, args: list[str]) -> Path
     print(" ".join(cmd), flush=True)
     child = subprocess.Popen(cmd, env={**os.environ, "LAB_LOGS_DIR": str(logs)})
     try:
-        child.wait(timeout=seconds)
+        if child.wait(timeout=seconds) != 0:
+            sys.exit(f"lab train ended with exit code {child.returncode}: nothing to report")
     except subprocess.TimeoutExpired:
         child.send_signal(signal.SIGINT)
         child.wait()
@@ -131,7 +133,10 @@ def report(run_dir: Path, level: float, success: float, mjlab_log: Path | None) 
     for m, (lv, sr) in row["marks"].items():
         if lv is not None:
             print(f"after {m} min: mean level {lv:.2f}, success {sr:.2f}")
-    print(f"at the end: mean level {row['final'][0]:.2f}, success {row['final'][1]:.2f}")
+    if None in row["final"]:
+        print("at the end: no terrain level and success logged")
+    else:
+        print(f"at the end: mean level {row['final'][0]:.2f}, success {row['final'][1]:.2f}")
     if row["final_by_type"]:
         print("  levels: " + ", ".join(f"{k} {v:.1f}" for k, v in row["final_by_type"].items()))
     if row["final_ends"]:

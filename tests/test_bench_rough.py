@@ -4,6 +4,8 @@ success goal was first met, over a run resumed in two sittings, and what the mea
 from __future__ import annotations
 
 import importlib.util
+import os
+import sys
 import time
 from pathlib import Path
 
@@ -63,3 +65,15 @@ def test_the_report_joins_sittings_and_names_each_terrain_type_and_cause(tmp_pat
     assert row["final"] == pytest.approx((6.5, 0.8))
     assert row["final_by_type"] == {"rough": 6.0, "stairs": 7.0}
     assert row["final_ends"] == pytest.approx({"base_contact": 0.1, "unstable": 0.05})
+
+
+def test_a_training_that_fails_says_so_and_reports_nothing(tmp_path, bench_rough, monkeypatch):
+    monkeypatch.setenv("PATH", f"{Path(sys.executable).parent}{os.pathsep}{os.environ['PATH']}")
+    with pytest.raises(SystemExit, match="lab train ended with exit code 2: nothing to report"):
+        bench_rough.train("no-such-task", tmp_path, 120, [])
+
+
+def test_a_run_that_logged_no_level_is_reported_as_such(tmp_path, bench_rough, capsys):
+    row = bench_rough.report(tmp_path, level=6.0, success=0.8, mjlab_log=None)
+    assert row["final"] == (None, None) and row["reached_s"] is None
+    assert "at the end: no terrain level and success logged" in capsys.readouterr().out

@@ -345,8 +345,10 @@ def test_both_backends_stand_go1s_on_the_terrain_and_scan_it_alike():
 
     from labcli.gym import make_env
 
+    # Upright against the terrain's normal: its reward is in the step the GPU captures.
     sets = ["env.observation_noise=false", "env.events.push_robot=null",
-            "env.terrain=" + json.dumps(TERRAIN)]
+            "env.terrain=" + json.dumps(TERRAIN),
+            "env.rewards.flat_orientation_l2.reference=terrain"]
     cpu = make_env("go1-flat", num_envs=8, backend="cpu", device="cpu", seed=0, overrides=sets)
     gpu = make_env("go1-flat", num_envs=8, backend="warp", device="cuda", seed=0, overrides=sets)
     cpu.reset(), gpu.reset()
@@ -369,6 +371,11 @@ def test_both_backends_stand_go1s_on_the_terrain_and_scan_it_alike():
     cpu.task.update(), gpu.task.update()
     scans = [o.height_scan(env.task, c.HeightScan())() for env in (cpu, gpu)]
     assert torch.allclose(scans[1].cpu().double(), scans[0], atol=1e-4)
+    from labcli.envs.mdp import rewards
+
+    upright = c.FlatOrientationL2(weight=-1.0, reference="terrain")
+    tilts = [rewards.flat_orientation_l2(env.task, upright) for env in (cpu, gpu)]
+    assert torch.allclose(tilts[1].cpu().double(), tilts[0], atol=1e-5)
 
 
 @needs_menagerie("unitree_g1")
