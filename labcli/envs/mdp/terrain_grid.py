@@ -75,15 +75,9 @@ class TerrainGrid:
     def normal(self, xy: torch.Tensor, span: float) -> torch.Tensor:
         """The terrain's unit normal `[n, 3]` under points `[n, 2]`: its slope taken `span`
         metres each way along x and y (a stair's edge is averaged over the span)."""
-        # Offsets as Python numbers: a tensor made from a list would be a copy from the host,
-        # which a CUDA graph of the env step cannot capture.
-        x, y = xy.unbind(-1)
-
-        def height(dx: float, dy: float) -> torch.Tensor:
-            return self.heights(torch.stack((x + dx, y + dy), dim=-1))
-
-        slope_x = (height(span, 0.0) - height(-span, 0.0)) / (2 * span)
-        slope_y = (height(0.0, span) - height(0.0, -span)) / (2 * span)
+        dx, dy = self.task.constant([span, 0.0]), self.task.constant([0.0, span])
+        slope_x = (self.heights(xy + dx) - self.heights(xy - dx)) / (2 * span)
+        slope_y = (self.heights(xy + dy) - self.heights(xy - dy)) / (2 * span)
         normal = torch.stack((-slope_x, -slope_y, torch.ones_like(slope_x)), dim=1)
         return normal / torch.linalg.vector_norm(normal, dim=1, keepdim=True)
 
