@@ -111,13 +111,7 @@ class LabVecEnv(gym.vector.VectorEnv):
             [i for i, name in enumerate(self.termination_names)
              if name in self.task.success_causes], dtype=torch.long, device=self.device)
         self.metric_names = list(self.task.episode_metrics())
-        # On the CPU a tensor reads on the host for free, and on most steps no env ends,
-        # diverges or gets a non-finite action: the step asks, and skips the work that would
-        # change nothing then (resets, episode figures, masking). On a GPU asking would wait for
-        # the device and break the step's CUDA graph, and a compiled step cannot ask: that work
-        # always runs there. Skipping an idle reset also decides which blocks draw
-        # (`EnvRandom.only_for`); the shortcuts change no output.
-        self._shortcuts = self.device.type == "cpu" and not cfg.compile
+        self._shortcuts = self._reads_on_the_host()
         first, total = shard or (0, self.num_envs)
         self._whole = total  # a list of seeds has one per env of the whole env (`one_seed`)
         self.rng = EnvRandom(self.num_envs, self.device, first, total,
@@ -309,6 +303,16 @@ class LabVecEnv(gym.vector.VectorEnv):
         act(actions.contiguous())  # compiled for a contiguous input
         self.sim.step(self.cfg.decimation, self.task.controls, self.task.substep)
         settle(*(getattr(out, name) for name in self._written))
+
+    def _reads_on_the_host(self) -> bool:
+        """Whether the step may read tensors on the host. On the CPU a tensor reads on the host
+        for free, and on most steps no env ends, diverges or gets a non-finite action: the step
+        asks, and skips the work that would change nothing then (resets, episode figures,
+        masking). On a GPU asking would wait for the device and break the step's CUDA graph,
+        and a compiled step cannot ask: that work always runs there. Skipping an idle reset
+        also decides which blocks draw (`EnvRandom.only_for`); the shortcuts change no output.
+        (A method: tests step a CPU env as a GPU steps it.)"""
+        return self.device.type == "cpu" and not self.cfg.compile
 
     def _act(self, actions: torch.Tensor) -> torch.Tensor | None:
         """The step before the physics: the actions made safe and turned into controls. The
