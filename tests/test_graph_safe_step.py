@@ -24,12 +24,28 @@ HOST_OPS = {torch.ops.aten.lift_fresh.default: "a tensor made from host data",
             torch.ops.aten._local_scalar_dense.default: "a tensor read on the host"}
 CODE = [Path(labcli.__file__).parents[1] / part for part in ("labcli", "tasks", "plugins")]
 
-# Options whose terms take other paths through the step than the tasks' defaults.
+# Options whose terms take other paths through the step than the tasks' defaults: upright
+# against the terrain, the privileged critic, and the sim-to-real settings of docs/deploying.md
+# (latency, a motor model, randomized motors and joints at each reset, a sensor's bias, history
+# and lag, a mounted IMU).
 VARIANTS = {
     "go1-rough": ["env.rewards.flat_orientation_l2.weight=-1.0",
                   "env.rewards.flat_orientation_l2.reference=terrain"],
-    "g1-flat": ["env.critic_observations=privileged"],
-    "go1-flat": ["env.actions.delay=[0,8]", "env.robot.actuators.hip.model=dc_motor"],
+    "g1-rough": ["env.rewards.upright.body=null", "env.rewards.upright.reference=terrain",
+                 "env.critic_observations=privileged"],
+    "go1-flat": ["env.actions.delay=[0,8]", "env.robot.actuators.hip.model=dc_motor",
+                 *(f"env.events.{event}.mode=reset" for event in (
+                     "actuator_gains", "joint_friction", "joint_damping", "joint_armature")),
+                 "env.events.actuator_gains.stiffness_range=[0.8,1.2]",
+                 "env.events.joint_friction.range=[0.0,0.3]",
+                 "env.events.joint_friction.operation=add",
+                 "env.events.joint_damping.range=[0.5,1.5]",
+                 "env.events.joint_armature.range=[0.9,1.1]",
+                 "env.observations.joint_pos.bias=0.02",
+                 "env.observations.joint_pos.history_length=3",
+                 "env.observations.joint_vel.delay=[0,2]",
+                 "env.observations.projected_gravity.site=imu",
+                 "env.observations.projected_gravity.mounting_range={roll: [-0.05, 0.05]}"],
 }
 
 
@@ -52,7 +68,7 @@ class HostOps(TorchDispatchMode):
 def _case(task: str, sets: list[str]):
     model = registry.get_task(task).model
     marks = [needs_menagerie(model.robot)] if isinstance(model, Menagerie) else []
-    return pytest.param(task, sets, marks=marks, id=" ".join([task, *sets]))
+    return pytest.param(task, sets, marks=marks, id=f"{task}-options" if sets else task)
 
 
 CASES = [*(_case(task, []) for task in registry.loaded().names(registry.TASK)),
