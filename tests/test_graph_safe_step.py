@@ -5,24 +5,18 @@ which a CUDA graph of the step can capture. CI has no GPU: here such a step fail
 
 from __future__ import annotations
 
-import collections
-import traceback
-from pathlib import Path
-
 import pytest
 import torch
-from conftest import needs_menagerie
-from torch.utils._python_dispatch import TorchDispatchMode
+from conftest import HostOps, needs_menagerie
 
-import labcli
 from labcli.envs.env import LabVecEnv
 from labcli.envs.spec import Menagerie
 from labcli.gym import make_env
 from labcli.plugins import registry
 
-HOST_OPS = {torch.ops.aten.lift_fresh.default: "a tensor made from host data",
-            torch.ops.aten._local_scalar_dense.default: "a tensor read on the host"}
-CODE = [Path(labcli.__file__).parents[1] / part for part in ("labcli", "tasks", "plugins")]
+# What a CUDA graph of the step cannot capture: a copy from the host, a wait for the device.
+UNCAPTURABLE = {torch.ops.aten.lift_fresh.default: "a tensor made from host data",
+                torch.ops.aten._local_scalar_dense.default: "a tensor read on the host"}
 
 # Options whose terms take other paths through the step than the tasks' defaults: upright
 # against the terrain, the privileged critic, and the sim-to-real settings of docs/deploying.md
@@ -49,22 +43,6 @@ VARIANTS = {
 }
 
 
-class HostOps(TorchDispatchMode):
-    """Counts the host ops run under it, by the line of the project's code that ran each."""
-
-    def __init__(self):
-        super().__init__()
-        self.seen: collections.Counter[str] = collections.Counter()
-
-    def __torch_dispatch__(self, func, types, args=(), kwargs=None):
-        if func in HOST_OPS:
-            ours = [f for f in traceback.extract_stack()
-                    if any(Path(f.filename).is_relative_to(code) for code in CODE)]
-            where = f"{ours[-1].filename}:{ours[-1].lineno}" if ours else "outside the project"
-            self.seen[f"{HOST_OPS[func]} at {where}"] += 1
-        return func(*args, **(kwargs or {}))
-
-
 def _case(task: str, sets: list[str]):
     model = registry.get_task(task).model
     marks = [needs_menagerie(model.robot)] if isinstance(model, Menagerie) else []
@@ -77,7 +55,7 @@ CASES = [*(_case(task, []) for task in registry.loaded().names(registry.TASK)),
 
 def test_the_spy_sees_what_a_cuda_graph_cannot_capture():
     x = torch.zeros(3)
-    with HostOps() as spy:
+    with HostOps(UNCAPTURABLE) as spy:
         x.new_tensor([1.0, 0.0])
         bool(x.any())
         x.add_(1.0)
@@ -95,7 +73,7 @@ def test_the_step_as_a_gpu_runs_it_neither_copies_from_nor_reads_on_the_host(tas
     env.reset(seed=0)
     env.step(torch.rand(shape, generator=gen) * 2 - 1)  # first-use set-up, as a GPU's warm-up
     actions = [torch.rand(shape, generator=gen) * 2 - 1 for _ in range(20)]
-    with HostOps() as spy:
+    with HostOps(UNCAPTURABLE) as spy:
         ends = [torch.logical_or(*env.step(a)[2:4]) for a in actions]
     env.close()
     assert torch.stack(ends).any(), "no episode ended: the resets were not stepped"

@@ -47,14 +47,13 @@ def test_samples_follow_the_same_gaussian(device, std_type):
     torch.testing.assert_close(ours.as_deterministic_output_module()(x), x)
 
 
-@pytest.mark.gpu
-@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA GPU")
-def test_sampling_does_not_wait_for_the_gpu():
-    theirs, ours = pair("cuda")
-    mean = torch.zeros(4096, 3, device="cuda")
+@pytest.mark.parametrize("device", DEVICES)
+def test_sampling_does_not_wait_for_the_gpu(device):
+    theirs, ours = pair(device)
+    mean = torch.zeros(4096, 3, device=device)
     for dist in (theirs, ours):
         dist.update(mean)
-    with no_device_waits("cuda"):
+    with no_device_waits(device):
         with pytest.raises(RuntimeError, match="synchroniz"):
             theirs.sample()  # RSL-RL's torch.normal checks its std on the host
         ours.sample()
