@@ -35,68 +35,16 @@ if "LAB_CONFIG_DIR" not in os.environ:
     os.environ["LAB_CONFIG_DIR"] = tempfile.mkdtemp(prefix="lab-test-config-")
 
 
-class HostOps:
-    """Inside (a torch dispatch mode), the ops of `ops` ({op: what it is}) that run are counted
-    in `seen`, by the line of the project's code that ran each; with `raising`, the first
-    raises a RuntimeError instead. It sees what goes through torch's dispatcher: a host read
-    inside one aten kernel (a boolean index counting its rows) is not seen."""
-
-    CODE = [Path(__file__).resolve().parents[1] / part for part in ("labcli", "tasks", "plugins")]
-
-    def __init__(self, ops: dict, raising: bool = False):
-        import collections
-
-        self.ops, self.raising = ops, raising
-        self.seen: collections.Counter[str] = collections.Counter()
-
-    def __enter__(self) -> HostOps:
-        import traceback
-
-        from torch.utils._python_dispatch import TorchDispatchMode
-
-        spy = self
-
-        class Mode(TorchDispatchMode):
-            def __torch_dispatch__(self, func, types, args=(), kwargs=None):
-                if func in spy.ops:
-                    ours = [f for f in traceback.extract_stack()
-                            if any(Path(f.filename).is_relative_to(c) for c in spy.CODE)]
-                    where = f"{ours[-1].filename}:{ours[-1].lineno}" if ours else "outside lab"
-                    if spy.raising:
-                        raise RuntimeError(f"{spy.ops[func]} at {where}: on a GPU this would "
-                                           "synchronize with the device")
-                    spy.seen[f"{spy.ops[func]} at {where}"] += 1
-                return func(*args, **(kwargs or {}))
-
-        self._mode = Mode()
-        self._mode.__enter__()
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self._mode.__exit__(*exc)
-
-
-def device_waits() -> dict:
-    """The ops that make the host wait for a GPU: a tensor read on the host, a count of
-    nonzero entries (its shape), and torch.normal's check that its std is not negative."""
-    import torch
-
-    aten = torch.ops.aten
-    return {aten._local_scalar_dense.default: "a tensor read on the host",
-            aten.nonzero.default: "a count of nonzero entries",
-            **dict.fromkeys((aten.normal.Tensor_Tensor, aten.normal.Tensor_float,
-                             aten.normal.float_Tensor), "torch.normal's check of its std")}
-
-
 @contextlib.contextmanager
 def no_device_waits(device: str) -> Iterator[None]:
     """Inside, an op that makes the host wait for the GPU raises a RuntimeError: on CUDA
     torch's sync debug mode (once the work queued before is done), on the CPU the ops of
-    `device_waits` as the dispatcher sees them."""
+    host_ops.DEVICE_WAITS as the dispatcher sees them."""
     import torch
+    from host_ops import DEVICE_WAITS, HostOps
 
     if torch.device(device).type != "cuda":
-        with HostOps(device_waits(), raising=True):
+        with HostOps(DEVICE_WAITS, raising=True):
             yield
         return
     torch.cuda.synchronize()

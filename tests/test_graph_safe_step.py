@@ -7,16 +7,13 @@ from __future__ import annotations
 
 import pytest
 import torch
-from conftest import HostOps, needs_menagerie
+from conftest import needs_menagerie
+from host_ops import UNCAPTURABLE, HostOps
 
 from labcli.envs.env import LabVecEnv
 from labcli.envs.spec import Menagerie
 from labcli.gym import make_env
 from labcli.plugins import registry
-
-# What a CUDA graph of the step cannot capture: a copy from the host, a wait for the device.
-UNCAPTURABLE = {torch.ops.aten.lift_fresh.default: "a tensor made from host data",
-                torch.ops.aten._local_scalar_dense.default: "a tensor read on the host"}
 
 # Options whose terms take other paths through the step than the tasks' defaults: upright
 # against the terrain, the privileged critic, and the sim-to-real settings of docs/deploying.md
