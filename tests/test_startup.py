@@ -49,6 +49,27 @@ def test_light_commands_import_no_heavy_library(args, tmp_path):
     assert out  # each printed what it is for
 
 
+def test_mujoco_warp_without_a_gpu_keeps_config_show_light(tmp_path):
+    """With MuJoCo Warp installed where NVIDIA's driver does not load (a laptop with
+    lab[warp]), picking the CPU's defaults asks no torch whether a GPU is usable."""
+    from labcli.runs.plan import cuda_driver_loads
+
+    if cuda_driver_loads():
+        pytest.skip("NVIDIA's driver loads here: torch is asked, as it must be")
+    site = tmp_path / "site"
+    (site / "mujoco_warp").mkdir(parents=True)
+    (site / "mujoco_warp" / "__init__.py").write_text("")
+    env = {"PYTHONPATH": os.pathsep.join(filter(None, [str(site), os.environ.get("PYTHONPATH")]))}
+    found = subprocess.run([sys.executable, "-c", "import importlib.util as u; "
+                            "print(u.find_spec('mujoco_warp').origin)"], capture_output=True,
+                           text=True, env={**os.environ, **env}, check=True)
+    assert found.stdout.strip() == str(site / "mujoco_warp" / "__init__.py")
+    heavy, out = heavy_imports("config", "show", "--task", "cartpole", "--framework", "sb3",
+                               env=env, logs=tmp_path / "logs")
+    assert heavy == ""
+    assert "num_envs" in out
+
+
 def test_completion_imports_no_heavy_library(tmp_path):
     heavy, out = heavy_imports(env=COMPLETION, logs=tmp_path)
     assert heavy == ""

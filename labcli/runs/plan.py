@@ -4,7 +4,9 @@ first line what it will do before the seconds of importing and building start.""
 
 from __future__ import annotations
 
+import ctypes
 import importlib.util
+import sys
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -65,16 +67,26 @@ class TrainPlan:
 def gpu_scale(backend: str | None, device: str | None) -> bool:
     """Whether the run will step on the warp backend, asked or picked by default (CUDA and
     MuJoCo Warp usable): its task defaults are the GPU-scale ones. torch is imported only where
-    MuJoCo Warp is installed and nothing was asked."""
+    MuJoCo Warp is installed, NVIDIA's driver loads and nothing was asked."""
     if backend is not None:
         return backend == "warp"
     if device is not None:
         return device.startswith("cuda")
-    if importlib.util.find_spec("mujoco_warp") is None:
+    if importlib.util.find_spec("mujoco_warp") is None or not cuda_driver_loads():
         return False
     from labcli.envs.sim import default_backend
 
     return default_backend() == "warp"
+
+
+def cuda_driver_loads() -> bool:
+    """Whether NVIDIA's driver library loads: without it no GPU is usable, and saying so takes
+    milliseconds where asking torch takes the second of importing it."""
+    try:
+        ctypes.CDLL("nvcuda.dll" if sys.platform == "win32" else "libcuda.so.1")
+    except OSError:
+        return False
+    return True
 
 
 def plan(task: str, framework: str, *, num_envs: int | None = None, seed: int | None = None,
