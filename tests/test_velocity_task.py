@@ -376,6 +376,24 @@ def test_sb3_s_gpu_defaults_take_the_rate_measured_there_and_the_cpu_s_stay():
     assert cpu.learning_rate == 5e-4 and cpu.batch_size == env.num_envs * 24 // 4
 
 
+def test_the_cpu_steps_playground_s_contacts_and_the_gpu_the_model_s_own():
+    """go1-flat's CPU defaults: pyramidal cones and feet of 3 contact dimensions on 1,024 envs;
+    on the GPU Menagerie's elliptic cones and feet of 6, which the built model shows."""
+    spec, rsl_rl = registry.get_task("go1-flat"), registry.get_framework("rsl_rl")
+    cpu, cpu_agent = config.resolve(spec, rsl_rl)
+    gpu, gpu_agent = config.resolve(spec, rsl_rl, gpu_scale=True)
+    assert (cpu.num_envs, cpu_agent.max_iterations) == (1024, 1000)
+    assert (gpu.num_envs, gpu_agent.max_iterations) == (4096, 300)
+    built = {scale: spec.task_class.build_model(cfg, spec.model)
+             for scale, cfg in (("cpu", cpu), ("gpu", gpu))}
+    assert built["cpu"].opt.cone == mujoco.mjtCone.mjCONE_PYRAMIDAL
+    assert built["gpu"].opt.cone == mujoco.mjtCone.mjCONE_ELLIPTIC
+    for scale, condim in (("cpu", 3), ("gpu", 6)):
+        model = built[scale]
+        feet = [g for g in range(model.ngeom) if model.geom_priority[g] == 1]
+        assert len(feet) == 4 and set(model.geom_condim[feet]) == {condim}, scale
+
+
 def test_train_play_and_export_go1_from_the_command_line(tmp_path):
     logs = tmp_path / "logs"
     trained = lab("train", "--task", "go1-flat", "--framework", "rsl_rl", "--num-envs", "8",
