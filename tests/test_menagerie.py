@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import hashlib
 import http.server
 import io
 import json
@@ -217,7 +218,8 @@ def test_a_run_on_a_model_file_plays_on_it_while_an_installed_task_names_it(
     file = folder / "scene.xml"
     set_model(plugin, monkeypatch, file)
     run = train(tmp_path).run
-    assert json.loads((run.dir / rundir.MANIFEST).read_text())["model"] == {"file": str(file)}
+    assert json.loads((run.dir / rundir.MANIFEST).read_text())["model"] == {
+        "file": str(file), "sha256": hashlib.sha256(file.read_bytes()).hexdigest()}
 
     set_model(plugin, monkeypatch, BARE)
     register_plugin(FileTask(file), "file-go1")
@@ -235,6 +237,34 @@ def test_a_run_on_a_model_file_plays_on_it_while_an_installed_task_names_it(
     assert warning.startswith(f"warning: the run's model {file} is no installed task's model "
                               "(lab opens no other file a run names): its env is built on the "
                               "task's current model, MuJoCo Menagerie's unitree_go1")
+
+
+@needs_menagerie("unitree_go1")
+def test_a_run_from_another_host_plays_silently_on_the_task_s_file_of_its_content(
+        plugin, monkeypatch, tmp_path):
+    """A run trained on a GPU host names the file where that host installed the task: here the
+    task's file of the content the run recorded is its model, without a word; the file edited
+    since, the one warning line."""
+    folder = tmp_path / "go1"
+    shutil.copytree(Path(os.environ["MENAGERIE_ROOT"]) / "unitree_go1", folder)
+    file = folder / "scene.xml"
+    set_model(plugin, monkeypatch, file)
+    run = train(tmp_path).run
+    manifest = json.loads((run.dir / rundir.MANIFEST).read_text())
+    elsewhere = "/root/site-packages/lab_menagerie_go1/scene.xml"
+    manifest["model"]["file"] = elsewhere
+    (run.dir / rundir.MANIFEST).write_text(json.dumps(manifest))
+    played = lab("play", "--run", str(run.dir), "--episodes", "1", logs=tmp_path)
+    assert played.exit_code == 0, played.output
+    assert "warning" not in played.stderr
+
+    file.write_text(file.read_text() + "<!-- edited -->\n")
+    played = lab("play", "--run", str(run.dir), "--episodes", "1", logs=tmp_path)
+    assert played.exit_code == 0, played.output
+    (warning,) = [line for line in played.stderr.splitlines() if "warning" in line]
+    assert warning.startswith(f"warning: the run's model {elsewhere} is no installed task's "
+                              f"model (lab opens no other file a run names): its env is built "
+                              f"on the task's current model, {file}")
 
 
 @pytest.mark.parametrize("model", [{"menagerie": {"robot": 5, "entry": "scene"}},

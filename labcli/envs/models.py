@@ -13,6 +13,7 @@ from pathlib import Path
 from types import TracebackType
 from typing import TYPE_CHECKING, Any
 
+from labcli import files
 from labcli.envs.spec import Menagerie
 from labcli.errors import LabError, first_line
 
@@ -152,10 +153,11 @@ def _lookup(source: Menagerie) -> tuple[mm.Robot, mm.EntryPoint]:
 
 def describe(source: ModelSource) -> dict[str, Any]:
     """What a run records of its model, so that `lab play` of it later finds the same one: a
-    file's path; a Menagerie robot's name, entry, the package's version, the Menagerie commit
-    its registry names and the robot folder's tree id (and the offline copy it read)."""
+    file's path and sha256 (of that file, not of the files it includes); a Menagerie robot's
+    name, entry, the package's version, the Menagerie commit its registry names and the robot
+    folder's tree id (and the offline copy it read)."""
     if not isinstance(source, Menagerie):
-        return {"file": str(source)}
+        return {"file": str(source), "sha256": files.sha256(source)}
     import mujoco_menagerie as mm
 
     robot, _ = _lookup(source)

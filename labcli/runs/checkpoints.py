@@ -11,7 +11,6 @@ Runs written before manifests existed are judged by their zip checksums."""
 from __future__ import annotations
 
 import errno
-import hashlib
 import json
 import os
 import re
@@ -108,7 +107,7 @@ def _publish(staging: Path, directory: Path, iteration: int, framework: str,
             raise RuntimeError(f"a checkpoint holds only files, not {path.name}")
         if durable:
             files.fsync_file(path)
-        entries[path.name] = {"bytes": path.stat().st_size, "sha256": _sha256(path)}
+        entries[path.name] = {"bytes": path.stat().st_size, "sha256": files.sha256(path)}
     for name in entries:
         (staging / name).chmod(files.FILE_MODE)
         (staging / name).replace(directory / name)
@@ -160,14 +159,6 @@ def rewrite(source: Path, fw: FrameworkSpec, iteration: int, target: Path,
     return write(target, fw, iteration, save, extra)
 
 
-def _sha256(path: Path) -> str:
-    digest = hashlib.sha256()
-    with path.open("rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
-
-
 def _read_manifest(path: Path) -> dict[str, Any]:
     """The manifest at `path`, or a ValueError saying why it is not one."""
     if path.is_symlink() or not path.is_file():
@@ -207,7 +198,7 @@ def damage(fw: FrameworkSpec, checkpoint: Checkpoint) -> str | None:
         path = directory / name
         if path.is_symlink() or not path.is_file():
             return f"{name} is missing"
-        if path.stat().st_size != entry["bytes"] or _sha256(path) != entry["sha256"]:
+        if path.stat().st_size != entry["bytes"] or files.sha256(path) != entry["sha256"]:
             return f"{name} is not as written (size or sha256)"
     return None
 

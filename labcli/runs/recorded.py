@@ -2,7 +2,8 @@
 spec that `lab play`, `lab export` and a resume build the run's env from: a Menagerie robot and
 entry, or a file that an installed task names as its model, as recorded, whatever the task names
 now; a run from before runs recorded their model, or whose file no installed task names, the
-task's current model (a run dir is data: lab opens no other file it names)."""
+task's current model (a run dir is data: lab opens no other file it names), silently where that
+file is of the content the run recorded."""
 
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ import dataclasses
 from pathlib import Path
 from typing import Any
 
+from labcli import files
 from labcli.envs import models
 from labcli.envs.spec import Menagerie
 from labcli.errors import LabError
@@ -57,17 +59,26 @@ def _installed_model_files() -> set[Path]:
     return {file for file in files if isinstance(file, Path)}
 
 
+def _same_content(digest: Any, model: Any) -> bool:
+    """Whether `model` is a file whose sha256 is the recorded `digest`."""
+    return (isinstance(digest, str) and isinstance(model, Path) and files.is_regular(model)
+            and files.sha256(model) == digest)
+
+
 def spec_of(run: rundir.Run, spec: Any) -> tuple[Any, str | None]:
     """`spec` with the model the run recorded, and a warning line where that model is not the
     one the run trained on: the installed registry's folder of its robot differs from the
     recorded one, or its file is no installed task's model (the task's current model
-    instead)."""
+    instead) and the task's file is not of the content the run recorded (a run trained on
+    another host names the file where that host installed it)."""
     model = recorded_model(run)
     if model is None or not dataclasses.is_dataclass(spec) or not hasattr(spec, MODEL):
         return spec, None
     if isinstance(model, Path):
         if model == spec.model or model in _installed_model_files():
             return dataclasses.replace(spec, model=model), None
+        if _same_content(record(run).get("sha256"), spec.model):
+            return spec, None  # the task's file, where the run's host installed it elsewhere
         return spec, (f"the run's model {model} is no installed task's model (lab opens no "
                       "other file a run names): its env is built on the task's current model, "
                       f"{models.about_line(spec.model)}")
