@@ -4,6 +4,7 @@
   python bench/bench_rough.py steps [--envs 4096] [--seconds 5]
   python bench/bench_rough.py train [--task go1-rough] [--logs DIR] [--seconds S] [-- ARGS...]
   python bench/bench_rough.py report RUN_DIR [--level 6] [--success 0.8] [--mjlab-log FILE]
+  python bench/bench_rough.py climb RUN_DIR [--envs 16] [--steps 400] [--speed 0.8]
 
 - steps: env-steps/s (random actions, resets included, `lab bench`'s rows) of go1-flat,
   go1-rough and go1-rough without its height scan, on the warp backend; the scan's share of
@@ -20,6 +21,11 @@
   episodes each termination ended; with --mjlab-log, a console log of mjlab's own `train`
   (RSL-RL's "Steps per second" lines) run in the same machine start, and the ratio to its
   median.
+- climb: a trained run's policy on the CPU, as `lab play` runs it (noise and pushes off), on
+  each pyramid alone (stairs and slopes, up out of the pit where inverted, else down from the
+  platform), band by band of difficulty: each robot starts at its patch's centre and is
+  commanded straight ahead at --speed; how many reached the patch's edge (the whole flight or
+  slope behind them) before a fall, how many fell, and how far they walked.
 """
 
 from __future__ import annotations
@@ -152,6 +158,68 @@ def report(run_dir: Path, level: float, success: float, mjlab_log: Path | None) 
     return row
 
 
+# The pyramids, from the patch's centre: which way a robot walks to the patch's edge.
+PYRAMIDS = {"stairs_down": "up out of the pit", "stairs": "down from the platform",
+            "slope_down": "up out of the pit", "slope": "down from the top"}
+BANDS = ((0.0, 0.3), (0.3, 0.6), (0.6, 0.8), (0.8, 1.0))
+EDGE = 0.15  # m inside the patch's edge: on the outermost tread
+
+
+def climb(run_dir: Path, envs: int, steps: int, speed: float) -> list[dict]:
+    import torch
+
+    from labcli.runs import play, rundir
+
+    command = "env.commands.base_velocity"
+    straight = [f"{command}.rel_heading_envs=0", f"{command}.rel_standing_envs=0",
+                f"{command}.lin_vel_x=[{speed},{speed}]", f"{command}.lin_vel_y=[0,0]",
+                f"{command}.ang_vel_z=[0,0]"]
+    types = rundir.open_run(run_dir).params(rundir.ENV_PARAMS)["terrain"]["types"]
+    rows = []
+    for kind, way in PYRAMIDS.items():
+        if types.get(kind) is None:
+            continue
+        alone = [f"env.terrain.types.{other}=null" for other in types if other != kind]
+        for low, high in BANDS:
+            loaded = play.load(run_dir=run_dir, num_envs=envs, seed=1, overrides=[
+                *alone, *straight, f"env.terrain.difficulty=[{low},{high}]"])
+            env, task = loaded.env, loaded.env.task
+            try:
+                obs, _ = env.reset(seed=1)
+                grid = task.terrain
+                centre = grid.origins[grid.levels, grid.types][:, :2]
+                start = task.robot.root_xy.clone()
+                crossed = torch.zeros(envs, dtype=torch.bool)
+                fell = torch.zeros(envs, dtype=torch.bool)
+                walked = torch.zeros(envs)
+                with torch.no_grad():
+                    for _ in range(steps):
+                        obs, _, terminated, _, _ = env.step(loaded.policy(obs))
+                        fell |= terminated & ~crossed
+                        xy = task.robot.root_xy
+                        reach = (xy - centre).abs().amax(dim=1)
+                        crossed |= ~fell & (reach >= grid.cfg.size / 2 - EDGE)
+                        walked = torch.where(fell, walked,
+                                             torch.linalg.vector_norm(xy - start, dim=1))
+            finally:
+                env.close()
+            row = {"terrain": kind, "difficulty": [low, high], "robots": envs,
+                   "crossed": int(crossed.sum()), "fell": int(fell.sum()),
+                   "walked_m_median": float(walked.median())}
+            rows.append(row)
+            print(f"{kind} ({way}), difficulty {low}-{high} ({_extent(types[kind], low, high)}"
+                  f"): {row['crossed']} of {envs} reached the patch's edge, {row['fell']} fell "
+                  f"(median {row['walked_m_median']:.1f} m walked in {steps} steps)", flush=True)
+    return rows
+
+
+def _extent(terrain: dict, low: float, high: float) -> str:
+    """What the band's difficulties make of a pyramid: its steps' height or its slope."""
+    key, unit = ("step_height", " m steps") if "step_height" in terrain else ("slope", " slope")
+    first, last = terrain[key]
+    return f"{first + low * (last - first):.2f}-{first + high * (last - first):.2f}{unit}"
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     sub = p.add_subparsers(dest="action", required=True)
@@ -170,9 +238,20 @@ def main() -> None:
         q.add_argument("--success", type=float, default=0.8)
         q.add_argument("--mjlab-log", type=Path)
         q.add_argument("--json", type=Path, help="write the report here")
+    c = sub.add_parser("climb")
+    c.add_argument("run_dir", type=Path)
+    c.add_argument("--envs", type=int, default=16)
+    c.add_argument("--steps", type=int, default=400)
+    c.add_argument("--speed", type=float, default=0.8)
+    c.add_argument("--json", type=Path, help="write the rows here")
     a = p.parse_args()
     if a.action == "steps":
         steps(a.envs, a.seconds)
+        return
+    if a.action == "climb":
+        rows = climb(a.run_dir, a.envs, a.steps, a.speed)
+        if a.json:
+            a.json.write_text(json.dumps(rows, indent=1))
         return
     with tempfile.TemporaryDirectory(prefix="bench_rough_") as scratch:
         run_dir = (train(a.task, a.logs or Path(scratch), a.seconds, a.args)
