@@ -191,15 +191,17 @@ def climb(run_dir: Path, envs: int, steps: int, speed: float) -> list[dict]:
                 start = task.robot.root_xy.clone()
                 crossed = torch.zeros(envs, dtype=torch.bool)
                 fell = torch.zeros(envs, dtype=torch.bool)
+                ended = torch.zeros(envs, dtype=torch.bool)  # a fall, after crossing or not
                 walked = torch.zeros(envs)
                 with torch.no_grad():
                     for _ in range(steps):
                         obs, _, terminated, _, _ = env.step(loaded.policy(obs))
                         fell |= terminated & ~crossed
+                        ended |= terminated
                         xy = task.robot.root_xy
                         reach = (xy - centre).abs().amax(dim=1)
-                        crossed |= ~fell & (reach >= grid.cfg.size / 2 - EDGE)
-                        walked = torch.where(fell, walked,
+                        crossed |= ~ended & (reach >= grid.cfg.size / 2 - EDGE)
+                        walked = torch.where(ended, walked,
                                              torch.linalg.vector_norm(xy - start, dim=1))
             finally:
                 env.close()
