@@ -77,3 +77,38 @@ def test_a_run_that_logged_no_level_is_reported_as_such(tmp_path, bench_rough, c
     row = bench_rough.report(tmp_path, level=6.0, success=0.8, mjlab_log=None)
     assert row["final"] == (None, None) and row["reached_s"] is None
     assert "at the end: no terrain level and success logged" in capsys.readouterr().out
+
+
+def test_climb_counts_the_robots_that_reach_their_patch_s_edge(tmp_path, bench_rough,
+                                                               monkeypatch):
+    """A go1-rough run on a small grid of the four pyramids, barely trained: in 10 steps no
+    robot walks from its patch's centre to the edge 1.85 m away, so none is counted; with the
+    edge moved to 0.1 m from the centre, the robots that the reset placed beyond it are."""
+    import io
+    import json
+
+    from rich.console import Console
+
+    from labcli.runs import training
+
+    pyramid = {"platform": 1.0, "step_width": 0.3}
+    types = {"stairs": {"type": "pyramid_stairs", **pyramid},
+             "stairs_down": {"type": "pyramid_stairs", "inverted": True, **pyramid},
+             "slope": {"type": "pyramid_slope", "platform": 1.0},
+             "slope_down": {"type": "pyramid_slope", "platform": 1.0, "inverted": True},
+             "boxes": None, "rough": None}
+    terrain = {"size": 4.0, "rows": 2, "cols": 4, "border": 1.0, "types": types}
+    run = training.train("go1-rough", "rsl_rl", num_envs=4, max_iterations=1, logs_dir=tmp_path,
+                         console=Console(file=io.StringIO()), command=["lab", "test"],
+                         overrides=["env.terrain=" + json.dumps(terrain),
+                                    "agent.num_steps_per_env=4"]).run
+    rows = bench_rough.climb(run.dir, envs=4, steps=10, speed=0.8)
+    assert [(r["terrain"], tuple(r["difficulty"])) for r in rows] == [
+        (kind, band) for kind in bench_rough.PYRAMIDS for band in bench_rough.BANDS]
+    assert all(r["crossed"] == 0 and 0 <= r["fell"] <= 4 and r["walked_m_median"] < 1.0
+               for r in rows)
+
+    monkeypatch.setattr(bench_rough, "PYRAMIDS", {"stairs_down": "up out of the pit"})
+    monkeypatch.setattr(bench_rough, "EDGE", 1.9)
+    rows = bench_rough.climb(run.dir, envs=4, steps=1, speed=0.8)
+    assert len(rows) == len(bench_rough.BANDS) and all(r["crossed"] >= 1 for r in rows)
