@@ -40,9 +40,9 @@ def record(run: rundir.Run) -> dict[str, Any] | None:
     return value
 
 
-def recorded_model(run: rundir.Run) -> Menagerie | Path | None:
-    """The Menagerie robot and entry, or the file, the run recorded; None for no record."""
-    found = record(run)
+def recorded_model(found: dict[str, Any] | None) -> Menagerie | Path | None:
+    """The Menagerie robot and entry, or the file, of a run's record (`record`'s); None for
+    no record."""
     if found is None:
         return None
     if MENAGERIE in found:
@@ -71,18 +71,19 @@ def spec_of(run: rundir.Run, spec: Any) -> tuple[Any, str | None]:
     recorded one, or its file is no installed task's model (the task's current model
     instead) and the task's file is not of the content the run recorded (a run trained on
     another host names the file where that host installed it)."""
-    model = recorded_model(run)
+    found = record(run)
+    model = recorded_model(found)
     if model is None or not dataclasses.is_dataclass(spec) or not hasattr(spec, MODEL):
         return spec, None
     if isinstance(model, Path):
         if model == spec.model or model in _installed_model_files():
             return dataclasses.replace(spec, model=model), None
-        if _same_content(record(run).get("sha256"), spec.model):
+        if _same_content(found.get("sha256"), spec.model):
             return spec, None  # the task's file, where the run's host installed it elsewhere
         return spec, (f"the run's model {model} is no installed task's model (lab opens no "
                       "other file a run names): its env is built on the task's current model, "
                       f"{models.about_line(spec.model)}")
-    menagerie = record(run)[MENAGERIE]
+    menagerie = found[MENAGERIE]
     warning = models.changed_since(model, menagerie.get("tree"), menagerie.get("package"))
     return dataclasses.replace(spec, model=model), warning
 
