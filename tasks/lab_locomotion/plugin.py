@@ -15,16 +15,17 @@ TASK = "labcli.envs.mdp.task:RobotTask"
 NETWORK = [400, 200, 100]
 
 
-def _gpu(defaults: dict, max_iterations: int, steps: int, sb3: dict | None = None) -> dict:
+def _gpu(defaults: dict, max_iterations: int, steps: int, sb3: dict | None = None,
+         env: dict | None = None) -> dict:
     """`defaults` with their settings for the GPU (warp backend): Isaac Lab's 4,096 envs,
     `max_iterations`, sb3's mini-batches a quarter of its `steps`-step rollout, as theirs, and
-    any other `sb3` agent settings measured there."""
+    any other `sb3` agent and `env` settings measured there."""
     for name, settings in defaults.items():
         agent = {"max_iterations": max_iterations}
         if name == "sb3":
             agent["batch_size"] = 4096 * steps // 4
             agent.update(sb3 or {})
-        settings["warp"] = {"env": {"num_envs": 4096}, "agent": agent}
+        settings["warp"] = {"env": {"num_envs": 4096, **(env or {})}, "agent": agent}
     return defaults
 
 
@@ -82,9 +83,9 @@ VELOCITY_NETWORK = [128, 128, 128]
 G1_ITERATIONS = 3500
 
 
-def _velocity_defaults(num_envs: int, max_iterations: int,
-                       gpu_iterations: int | None = None) -> dict:
-    env = {"env": {"num_envs": num_envs}}
+def _velocity_defaults(num_envs: int, max_iterations: int, gpu_iterations: int | None = None,
+                       cpu_env: dict | None = None, gpu_env: dict | None = None) -> dict:
+    env = {"env": {"num_envs": num_envs, **(cpu_env or {})}}
     return _gpu({
         "rsl_rl": {**env, "agent": {
             "max_iterations": max_iterations, "num_steps_per_env": 24,
@@ -105,7 +106,8 @@ def _velocity_defaults(num_envs: int, max_iterations: int,
         # On one H100 sb3 at 5e-4 ended its 300 iterations at 0.15-0.25 success; at 1e-3
         # (rsl_rl's and skrl's starting rate) at 0.97-0.98, 0.95 first reached after 25-26 M
         # of its 29.5 M steps (docs/benchmarks.md). The CPU's rate stays: not measured there.
-    }, max_iterations=gpu_iterations or max_iterations, steps=24, sb3={"learning_rate": 1e-3})
+    }, max_iterations=gpu_iterations or max_iterations, steps=24, sb3={"learning_rate": 1e-3},
+        env=gpu_env)
 
 
 # mjlab's G1 velocity agent (tasks/velocity/config/g1/rl_cfg.py): 24 steps per env, [512, 256,
@@ -162,14 +164,6 @@ MODEL_CONTACTS = {"cone": None, "robot": {"collisions": None}}
 GO1_CPU_ITERATIONS = 1000
 
 
-def _with_laptop_contacts(defaults: dict) -> dict:
-    """`defaults` stepping LAPTOP_CONTACTS on the CPU and the model's own contacts on the GPU."""
-    for settings in defaults.values():
-        settings["env"].update(LAPTOP_CONTACTS)
-        settings["warp"]["env"].update(MODEL_CONTACTS)
-    return defaults
-
-
 def _quadruped_flat(robot: ModuleType, defaults: dict) -> TaskSpec:
     """Isaac Lab's Velocity-Flat-Unitree-<robot> on Menagerie's robot of `robot`'s module
     (go1.py, go2.py): `<robot>-flat`, its config `<Robot>FlatConfig`."""
@@ -189,8 +183,9 @@ def register_tasks(register):
                    "target 1 km ahead", max_iterations=150))
     register(_spec("humanoid", "HumanoidConfig", "Isaac Lab's Humanoid: a 17-joint humanoid "
                    "runs toward a target 1 km ahead", max_iterations=1000))
-    register(_quadruped_flat(go1, _with_laptop_contacts(_velocity_defaults(
-        num_envs=1024, max_iterations=GO1_CPU_ITERATIONS, gpu_iterations=300))))
+    register(_quadruped_flat(go1, _velocity_defaults(
+        num_envs=1024, max_iterations=GO1_CPU_ITERATIONS, gpu_iterations=300,
+        cpu_env=LAPTOP_CONTACTS, gpu_env=MODEL_CONTACTS)))
     register(_quadruped_flat(go2, _velocity_defaults(num_envs=256, max_iterations=300)))
     register(TaskSpec(
         name="g1-flat", task=TASK, config="lab_locomotion.config:G1FlatConfig", model=g1.MODEL,
