@@ -246,6 +246,25 @@ def test_a_framework_gives_defaults_for_the_tasks_it_knows_and_the_task_s_own_wi
     assert env.num_envs == 96 and env.decimation == 3
 
 
+ROBOT_TASKS = [name for name in registry.loaded().names(registry.TASK)
+               if registry.get_task(name).task == "labcli.envs.mdp.task:RobotTask"]
+# Each PPO framework's key of the policy's layers.
+NETWORKS = {"rsl_rl": "actor_hidden_dims", "skrl": "hidden_sizes", "sb3": "net_arch",
+            "rl_games": "units"}
+
+
+@pytest.mark.parametrize("gpu_scale", [False, True])
+@pytest.mark.parametrize("task", ROBOT_TASKS)
+def test_every_robot_task_gives_its_recipe_to_every_ppo_framework(task, gpu_scale):
+    """The same envs, iterations and networks whichever PPO a user picks, not a framework's
+    generic defaults (100 iterations of [32, 32] in rl_games's)."""
+    spec = registry.get_task(task)
+    runs = {name: resolve(spec, name, gpu_scale=gpu_scale) for name in NETWORKS}
+    assert len({env.model_dump_json() for env, _ in runs.values()}) == 1
+    assert len({agent.max_iterations for _, agent in runs.values()}) == 1
+    assert len({tuple(getattr(agent, NETWORKS[name])) for name, (_, agent) in runs.items()}) == 1
+
+
 def test_reward_weights_merge_key_by_key_across_layers(tmp_path):
     spec = dataclasses.replace(registry.get_task("cartpole"), framework_defaults={
         "sb3": {"env": {"reward_weights": {"cart_vel": -0.5}}, "agent": {}}})

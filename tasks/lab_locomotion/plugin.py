@@ -103,6 +103,13 @@ def _velocity_defaults(num_envs: int, max_iterations: int, gpu_iterations: int |
             "n_epochs": 5, "learning_rate": 5e-4, "ent_coef": 0.01, "vf_coef": 1.0,
             "max_grad_norm": 1.0, "net_arch": VELOCITY_NETWORK, "activation": "elu",
             "normalize_obs": False}},
+        # rl_games: the same PPO in its terms (a mini-batch a quarter of the rollout: 6 of 24
+        # steps), with its running input and value normalization.
+        "rl_games": {**env, "agent": {
+            "max_iterations": max_iterations, "horizon_length": 24, "mini_epochs": 5,
+            "minibatch_size_per_env": 6, "learning_rate": 1e-3, "kl_threshold": 0.01,
+            "entropy_coef": 0.01, "critic_coef": 1.0, "units": VELOCITY_NETWORK,
+            "activation": "elu"}},
         # On one H100 sb3 at 5e-4 ended its 300 iterations at 0.15-0.25 success; at 1e-3
         # (rsl_rl's and skrl's starting rate) at 0.97-0.98, 0.95 first reached after 25-26 M
         # of its 29.5 M steps (docs/benchmarks.md). The CPU's rate stays: not measured there.
@@ -131,12 +138,6 @@ def _with_network(defaults: dict, network: list[int]) -> dict:
 
 def _g1_defaults(iterations: int = G1_ITERATIONS) -> dict:
     defaults = _velocity_defaults(num_envs=256, max_iterations=iterations)
-    # rl_games: the same PPO in its terms (a mini-batch a quarter of the rollout: 6 of 24 steps).
-    defaults["rl_games"] = {"env": {"num_envs": 256}, "agent": {
-        "max_iterations": iterations, "horizon_length": 24, "mini_epochs": 5,
-        "minibatch_size_per_env": 6, "learning_rate": 1e-3, "kl_threshold": 0.01,
-        "entropy_coef": 0.01, "critic_coef": 1.0},
-        "warp": {"env": {"num_envs": 4096}, "agent": {"max_iterations": iterations}}}
     for name, settings in defaults.items():
         settings["agent"].update({"rsl_rl": {"empirical_normalization": True},
                                   "skrl": {"normalize_obs": True},

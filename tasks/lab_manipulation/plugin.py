@@ -15,15 +15,17 @@ def _ppo(network: list[int], learning_rate: float, epochs: int, entropy: float,
          iterations: int, gamma: float = 0.99, lam: float = 0.95, cpu_envs: int = 256,
          cpu_iterations: int | None = None) -> dict:
     """An Isaac Lab (or mjlab) manipulation agent (24 steps per env, ELU networks, 4
-    mini-batches, the learning rate adapted to a KL of 0.01) in rsl_rl's and skrl's keys:
-    `cpu_envs` envs and `cpu_iterations` (else `iterations`) on the CPU, 4,096 envs and
-    `iterations` on the GPU (warp backend). Observations are normalized by their running
+    mini-batches, the learning rate adapted to a KL of 0.01) in each framework's keys (sb3
+    keeps its learning rate: it has no KL-adapted schedule): `cpu_envs` envs and
+    `cpu_iterations` (else `iterations`) on the CPU, 4,096 envs and `iterations` on the GPU
+    (warp backend). Observations are normalized by their running
     statistics, as mjlab's agents do and Isaac Lab's do not: without it panda-lift's arm held
     the cube 10 cm up under every target through 3,000 iterations (with it, 98% of episodes
     played carried it to the target after 1,069), and on the 2-core CPU 11% of panda-reach's
     episodes played within the bounds after 1,000 iterations (72% with it)."""
     env = {"env": {"num_envs": cpu_envs}}
     gpu = {"env": {"num_envs": 4096}, "agent": {"max_iterations": iterations}}
+    sb3_gpu = {**gpu, "agent": {**gpu["agent"], "batch_size": 4096 * 24 // 4}}
     cpu_iterations = cpu_iterations or iterations
     return {
         "rsl_rl": {**env, "warp": gpu, "agent": {
@@ -38,6 +40,16 @@ def _ppo(network: list[int], learning_rate: float, epochs: int, entropy: float,
             "entropy_loss_scale": entropy, "discount_factor": gamma, "gae_lambda": lam,
             "value_loss_scale": 1.0, "hidden_sizes": network, "activation": "elu",
             "normalize_obs": True, "normalize_value": False}},
+        "sb3": {**env, "warp": sb3_gpu, "agent": {
+            "max_iterations": cpu_iterations, "n_steps": 24, "batch_size": cpu_envs * 24 // 4,
+            "n_epochs": epochs, "learning_rate": learning_rate, "ent_coef": entropy,
+            "gamma": gamma, "gae_lambda": lam, "vf_coef": 1.0, "max_grad_norm": 1.0,
+            "net_arch": network, "activation": "elu", "normalize_obs": True}},
+        "rl_games": {**env, "warp": gpu, "agent": {
+            "max_iterations": cpu_iterations, "horizon_length": 24, "mini_epochs": epochs,
+            "minibatch_size_per_env": 6, "learning_rate": learning_rate, "kl_threshold": 0.01,
+            "entropy_coef": entropy, "gamma": gamma, "tau": lam, "critic_coef": 1.0,
+            "units": network, "activation": "elu", "normalize_input": True}},
     }
 
 
