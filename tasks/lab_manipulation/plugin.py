@@ -18,11 +18,11 @@ def _ppo(network: list[int], learning_rate: float, epochs: int, entropy: float,
     mini-batches, the learning rate adapted to a KL of 0.01) in each framework's keys (sb3
     keeps its learning rate: it has no KL-adapted schedule): `cpu_envs` envs and
     `cpu_iterations` (else `iterations`) on the CPU, 4,096 envs and `iterations` on the GPU
-    (warp backend). Observations are normalized by their running
-    statistics, as mjlab's agents do and Isaac Lab's do not: without it panda-lift's arm held
-    the cube 10 cm up under every target through 3,000 iterations (with it, 98% of episodes
-    played carried it to the target after 1,069), and on the 2-core CPU 11% of panda-reach's
-    episodes played within the bounds after 1,000 iterations (72% with it)."""
+    (warp backend). Observations are normalized by their running statistics, as mjlab's
+    agents do and Isaac Lab's do not: without it panda-lift's arm held the cube 10 cm up under
+    every target through 3,000 iterations (with it, 98% of episodes played carried it to the
+    target after 1,069), and on the 2-core CPU 11% of panda-reach's episodes played within the
+    bounds after 1,000 iterations (72% with it)."""
     env = {"env": {"num_envs": cpu_envs}}
     gpu = {"env": {"num_envs": 4096}, "agent": {"max_iterations": iterations}}
     sb3_gpu = {**gpu, "agent": {**gpu["agent"], "batch_size": 4096 * 24 // 4}}
