@@ -343,23 +343,28 @@ def test_the_thread_count_does_not_change_a_robot_tasks_trajectory(task):
 
 @needs_menagerie("unitree_go1")
 def test_the_config_sets_the_physics_options_over_the_model_s():
-    """go1-flat sets the step and the solver's iterations; cones and impratio stay Menagerie's
-    (elliptic, 100) unless set: pyramidal cones step a Go1 2.3x as fast on the CPU."""
+    """go1-flat sets the step and the solver's iterations; cones, impratio and the integrator
+    stay Menagerie's (elliptic, 100, and MuJoCo's Euler: the Go1's MJCF names none) unless set:
+    pyramidal cones step a Go1 2.3x as fast on the CPU."""
     from labcli.gym import make_env
 
     env = make_env("go1-flat", num_envs=2, backend="cpu")
     opt = env.sim.model.opt
     assert (opt.timestep, opt.iterations, opt.ls_iterations) == (0.005, 10, 20)
     assert (opt.cone, opt.impratio) == (mujoco.mjtCone.mjCONE_ELLIPTIC, 100.0)
+    assert opt.integrator == mujoco.mjtIntegrator.mjINT_EULER
     env.close()
-    env = make_env("go1-flat", num_envs=2, backend="cpu",
-                   overrides=["env.cone=pyramidal", "env.impratio=1"])
-    assert (env.sim.model.opt.cone, env.sim.model.opt.impratio) == (
-        mujoco.mjtCone.mjCONE_PYRAMIDAL, 1.0)
+    env = make_env("go1-flat", num_envs=2, backend="cpu", overrides=[
+        "env.cone=pyramidal", "env.impratio=1", "env.integrator=implicitfast"])
+    opt = env.sim.model.opt
+    assert (opt.cone, opt.impratio, opt.integrator) == (
+        mujoco.mjtCone.mjCONE_PYRAMIDAL, 1.0, mujoco.mjtIntegrator.mjINT_IMPLICITFAST)
     env.step(torch.zeros(2, 12))
     env.close()
     with pytest.raises(LabError, match="cone"):
         make_env("go1-flat", num_envs=2, backend="cpu", overrides=["env.cone=round"])
+    with pytest.raises(LabError, match="integrator"):
+        make_env("go1-flat", num_envs=2, backend="cpu", overrides=["env.integrator=implicit"])
 
 
 def test_a_term_reading_the_contacts_of_a_body_that_touches_nothing_is_refused():

@@ -35,12 +35,16 @@ class TaskConfig(BaseModel):
                                           "solver's iterations; None keeps the MJCF's")
     ls_iterations: int | None = Field(None, gt=0, le=1000, description="its line search's "
                                       "iterations; None keeps the MJCF's")
-    # Menagerie's legged robots (and mjlab's) use elliptic cones: exact, and on the CPU a Go1
-    # step takes 2.3x as long as with pyramidal ones.
+    # Menagerie's quadrupeds use elliptic cones (mjlab's Go1 too, at impratio 10): exact, and on
+    # the CPU a Go1 step takes 2.3x as long as with pyramidal ones.
     cone: Literal["pyramidal", "elliptic"] | None = Field(
         None, description="friction cones; None keeps the MJCF's")
     impratio: float | None = Field(None, gt=0, le=1e4, description="the ratio of frictional to "
                                    "normal constraint impedance; None keeps the MJCF's")
+    # Menagerie's Go1 and Go2 name none, so MuJoCo's Euler integrates their PD servos' damping
+    # explicitly; mjlab steps every robot with implicitfast. Both backends have these three.
+    integrator: Literal["euler", "implicitfast", "rk4"] | None = Field(
+        None, description="the integrator; None keeps the MJCF's")
     action_scale: float = Field(1.0, description="policy action in [-1, 1] times this is ctrl")
     clip_actions: float = Field(1.0, gt=0, description="actions are clipped to ±this before "
                                 "the task turns them into controls: the env's action space")
