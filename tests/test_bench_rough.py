@@ -3,26 +3,21 @@ success goal was first met, over a run resumed in two sittings, and what the mea
 
 from __future__ import annotations
 
-import importlib.util
 import os
 import sys
 import time
 from pathlib import Path
 
+import benchscripts
 import pytest
 from torch.utils.tensorboard import SummaryWriter
 
 from labcli.envs import metrics
 
-BENCH = Path(__file__).parents[1] / "bench" / "bench_rough.py"
-
 
 @pytest.fixture(scope="module")
 def bench_rough():
-    spec = importlib.util.spec_from_file_location("bench_rough", BENCH)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return benchscripts.load("bench_rough")
 
 
 def sitting(run_dir: Path, start: float, rows: list[tuple[float, int, dict[str, float]]],

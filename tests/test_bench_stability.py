@@ -3,21 +3,11 @@ rewards, under random actions of a given size."""
 
 from __future__ import annotations
 
-import importlib.util
-from pathlib import Path
-
-BENCH = Path(__file__).parents[1] / "bench" / "bench_stability.py"
-
-
-def _bench():
-    spec = importlib.util.spec_from_file_location("bench_stability", BENCH)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+import benchscripts
 
 
 def test_it_counts_the_steps_past_each_speed_and_the_large_rewards():
-    bench = _bench()
+    bench = benchscripts.load("bench_stability")
     still = bench.count("cartpole", [], envs=8, steps=20, sigma=0.0)
     assert still["past"] == {30: 0, 100: 0, 1000: 0}
     # 100 kN on the cart: it passes 30 and 100 m/s before its rail's end ends the episode.
