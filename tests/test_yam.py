@@ -9,6 +9,8 @@ import numpy as np
 import pytest
 import torch
 from conftest import needs_menagerie, needs_warp
+from lab_manipulation.config import YamLiftRewards
+from lab_manipulation.yam import FINGERS
 
 from labcli.envs.mdp import config as c
 from labcli.envs.mdp import robot_model
@@ -23,9 +25,9 @@ CUBE_POS, CUBE_QUAT = slice(8, 11), slice(11, 15)
 REST = 0.01  # the 2 cm half-size cube's centre resting on Menagerie's floor, 1 cm below the base
 
 
-def lift(n: int, *overrides: str):
+def lift(n: int, *overrides: str, **config):
     env = make_env("yam-lift", num_envs=n, seed=0, backend="cpu", device="cpu",
-                   overrides=["env.observation_noise=false", *overrides])
+                   overrides=["env.observation_noise=false", *overrides], **config)
     env.reset()
     return env
 
@@ -68,10 +70,11 @@ def settle(env) -> None:
         env.step(torch.zeros(env.num_envs, 7, device=env.sim.qpos.device))
 
 
-def grasp(env) -> list[torch.Tensor]:
-    """The actions of a scripted grasp of each env's cube where it rests: the pinch 12 cm over
-    it with the gripper open, down to it along a straight line, the gripper closed, up 10 cm.
-    Each step's joint targets start from the last ones (small steps of the hand)."""
+def plan(env, heights: list[float], grips: list[float]) -> list[torch.Tensor]:
+    """The actions that put each env's pinch over its cube where it rests, `heights` (m) over
+    its centre and the fingers at `grips` (m), one of each a step, the pinch's y axis across
+    the cube's faces. Each step's joint targets start from the last ones (small steps of the
+    hand)."""
     model, task = env.sim.model, env.task
     scales = np.array([g.scale(2.0, 2.0) for g in task.cfg.robot.actuators.values()])
     default = task.robot.default_joint_pos[0].double().cpu().numpy()
@@ -79,18 +82,31 @@ def grasp(env) -> list[torch.Tensor]:
     cubes = qpos[:, CUBE_POS].copy()
     w, z = qpos[:, CUBE_QUAT][:, 0], qpos[:, CUBE_QUAT][:, 3]
     yaws = 2.0 * np.arctan2(z, w)
-    heights = ([0.12] * 40 + np.linspace(0.12, 0.0, 50).tolist() + [0.0] * 80
-               + np.linspace(0.0, 0.1, 100).tolist() + [0.1] * 20)
-    grips = [0.0375] * 100 + [0.0] * 190  # open, then closed from 10 steps at the cube
     arm = [model.joint(j).qposadr[0] for j in ARM]
-    plan = []
+    actions = []
     for height, grip in zip(heights, grips, strict=True):
         rows = []
         for i in range(env.num_envs):
             qpos[i, arm] = pinch_down_at(model, qpos[i], cubes[i] + [0, 0, height], yaws[i])
             rows.append((np.append(qpos[i, arm], grip) - default[:7]) / scales)
-        plan.append(torch.tensor(np.stack(rows), dtype=torch.float32))
-    return plan
+        actions.append(torch.tensor(np.stack(rows), dtype=torch.float32))
+    return actions
+
+
+def grasp(env) -> list[torch.Tensor]:
+    """A scripted grasp: the pinch 12 cm over the cube with the gripper open, down to it along
+    a straight line, the gripper closed, up 10 cm."""
+    heights = ([0.12] * 40 + np.linspace(0.12, 0.0, 50).tolist() + [0.0] * 80
+               + np.linspace(0.0, 0.1, 100).tolist() + [0.1] * 20)
+    grips = [0.0375] * 100 + [0.0] * 190  # open, then closed from 10 steps at the cube
+    return plan(env, heights, grips)
+
+
+def press(env) -> list[torch.Tensor]:
+    """Fingertips pressing the cube down: the pinch lowered to 1 cm over the cube's centre
+    with the fingers 3 mm from shut, so that both tips land on its top face."""
+    heights = [0.12] * 40 + np.linspace(0.12, 0.01, 60).tolist() + [0.01] * 40
+    return plan(env, heights, [0.003] * len(heights))
 
 
 def test_a_scripted_grasp_lifts_the_cube_and_the_lift_terms_see_it():
@@ -127,6 +143,41 @@ def test_a_scripted_grasp_lifts_the_cube_and_the_lift_terms_see_it():
         assert float(rewards["lift_precise"][0]) == pytest.approx(math.exp(-bring / 0.05**2),
                                                                   rel=1e-5, abs=1e-12)
         assert not env.task.terminations()["ee_ground_collision"].any()
+    finally:
+        env.close()
+
+
+class _GraspRewards(YamLiftRewards):
+    touched: c.ObjectGrasped | None = c.ObjectGrasped(weight=1.0, object="cube",
+                                                      fingers=FINGERS)
+    squeezed: c.ObjectGrasped | None = c.ObjectGrasped(weight=1.0, object="cube",
+                                                       fingers=FINGERS, squeeze=0.8)
+
+
+@pytest.mark.parametrize(("script", "squeezed", "share"), [(press, False, (0.95, 1.0)),
+                                                          (grasp, True, (0.1, 0.3))])
+def test_fingertips_pressing_the_cube_down_touch_it_and_squeeze_tells_them_from_a_grasp(
+        script, squeezed, share):
+    """Both fingertips pressing the cube into the floor touch it as a grasp's pads do (the
+    grasp term without `squeeze` pays for both), but push it the same way: the net force of
+    their contacts is nearly the sum of their sizes, where pads holding it in the air push it
+    from opposing sides (about 0.2: its weight over the squeeze). `squeeze=0.8` pays for the
+    grasp alone."""
+    env = lift(2, rewards=_GraspRewards())
+    try:
+        settle(env)
+        for action in script(env):
+            env.step(action)
+        rewards = env.task.reward_terms()
+        assert rewards["touched"].tolist() == [1.0, 1.0]
+        assert rewards["squeezed"].tolist() == ([1.0, 1.0] if squeezed else [0.0, 0.0])
+        model, height = env.sim.model, env.sim.qpos[:, CUBE_POS][:, 2]
+        assert ((height < REST) if not squeezed else (height > REST + 0.08)).all()
+        forces = torch.stack([
+            env.sim.sensordata[:, model.sensor(f"lab:contact:subtree:{finger}:body:cube").adr[0]
+                               + 1:][:, :3].double() for finger in FINGERS], dim=1)
+        ratio = forces.sum(dim=1).norm(dim=1) / forces.norm(dim=2).sum(dim=1)
+        assert ((ratio > share[0]) & (ratio < share[1])).all()
     finally:
         env.close()
 

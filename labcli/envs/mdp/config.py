@@ -537,17 +537,30 @@ class ObjectReach(ObjectTerm, RewardTerm):
     std: float = Field(0.1, gt=0, description="m")
 
 
-class HeldObjectTerm(ObjectTerm):
+class GraspTerm(ObjectTerm):
+    """A term that asks whether fingers hold the object: each of them touches it."""
+
+    squeeze: float | None = Field(None, gt=0, le=1, description="where given, the fingers "
+                                  "must also push the object from opposing sides: their "
+                                  "contacts' net force at most this share of the sum of their "
+                                  "sizes (the YAM's pads holding a 50 g cube in the air: 0.2; "
+                                  "both fingertips pressing it into the floor: 0.98-1.0); "
+                                  "None: touching is enough")
+
+
+class HeldObjectTerm(GraspTerm):
     """A term about an object that counts only while held, where `held_by` is given."""
 
     held_by: list[str] | None = Field(None, min_length=1, description="finger bodies that must "
-                                      "all touch the object for it to count (a batted object "
-                                      "does not); None: any")
+                                      "all touch the object (and squeeze it, where `squeeze` "
+                                      "is given) for it to count (a batted object does not); "
+                                      "None: any")
 
 
-class ObjectGrasped(ObjectTerm, RewardTerm):
+class ObjectGrasped(GraspTerm, RewardTerm):
     """1 where each of the `fingers` bodies touches the object: robosuite Lift's grasp
-    reward."""
+    reward. Fingertips that press the object down touch it too: `squeeze` tells them from a
+    grasp."""
 
     impl: ClassVar[str] = "labcli.envs.mdp.rewards:object_grasped"
     fingers: list[str] = Field(min_length=1, description="the gripper's finger bodies")

@@ -61,17 +61,28 @@ class FreeBody:
 
 class Grasp:
     """Whether each env's object is held, `[n]` (bool): every one of the finger bodies (their
-    subtrees) touches it. A pushed or batted object touches one finger at most."""
+    subtrees) touches it, and where `squeeze` is given, their contacts' net force is at most
+    that share of the sum of their sizes. A pushed or batted object touches one finger at
+    most; fingertips pressing it into the floor push it the same way, a grasp from opposing
+    sides."""
 
-    def __init__(self, task: RobotTask, body: str, fingers: list[str]):
-        self.count = len(fingers)
+    def __init__(self, task: RobotTask, body: str, fingers: list[str], squeeze: float | None):
+        self.count, self.squeeze = len(fingers), squeeze
         self.contacts = sensors.columns(task, [[s.name] for s in grasp_sensors(body, fingers)])
-        self.robot, self.key = task.robot, ("held", body, tuple(fingers))
+        self.robot, self.key = task.robot, ("held", body, tuple(fingers), squeeze)
 
     def __call__(self) -> torch.Tensor:
-        # Each sensor's 4 values: the number of contacts, then their net force.
-        return self.robot.per_state(self.key, lambda: (
-            self.contacts().view(-1, self.count, 4)[:, :, 0] > 0).all(dim=1))
+        return self.robot.per_state(self.key, self._held)
+
+    def _held(self) -> torch.Tensor:
+        # Each sensor's 4 values: the number of contacts, then their net force (world frame).
+        contacts = self.contacts().view(-1, self.count, 4)
+        held = (contacts[:, :, 0] > 0).all(dim=1)
+        if self.squeeze is not None:
+            forces = contacts[:, :, 1:]
+            net = torch.linalg.vector_norm(forces.sum(dim=1), dim=1)
+            held &= net <= self.squeeze * torch.linalg.vector_norm(forces, dim=2).sum(dim=1)
+        return held
 
 
 class SiteToObject:
@@ -104,8 +115,9 @@ def free_body(task: RobotTask, body: str) -> FreeBody:
     return task.shared(("free_body", body), lambda: FreeBody(task, body))
 
 
-def grasp(task: RobotTask, body: str, fingers: list[str]) -> Grasp:
-    return task.shared(("grasp", body, tuple(fingers)), lambda: Grasp(task, body, fingers))
+def grasp(task: RobotTask, body: str, fingers: list[str], squeeze: float | None) -> Grasp:
+    return task.shared(("grasp", body, tuple(fingers), squeeze),
+                       lambda: Grasp(task, body, fingers, squeeze))
 
 
 def site_to_object(task: RobotTask, site: str, body: str) -> SiteToObject:

@@ -107,7 +107,7 @@ class object_ee_distance:  # noqa: N801
 
 class object_grasped:  # noqa: N801
     def __init__(self, task: RobotTask, cfg: c.ObjectGrasped):
-        self.held = objects.grasp(task, cfg.object, cfg.fingers)
+        self.held = objects.grasp(task, cfg.object, cfg.fingers, cfg.squeeze)
 
     @staticmethod
     def sensors(model: mujoco.MjModel, cfg: c.ObjectGrasped) -> list[sensors.Sensor]:
@@ -123,7 +123,7 @@ class _Lifted:
     def __init__(self, task: RobotTask, cfg: c.ObjectLifted | c.ObjectGoalDistance):
         self.object, self.cfg = objects.free_body(task, cfg.object), cfg
         self.held = None if cfg.held_by is None else objects.grasp(task, cfg.object,
-                                                                    cfg.held_by)
+                                                                    cfg.held_by, cfg.squeeze)
 
     @staticmethod
     def sensors(model: mujoco.MjModel, cfg: c.HeldObjectTerm) -> list[sensors.Sensor]:
