@@ -8,7 +8,8 @@ actions, N(0, sigma) per joint (resets included, on the cpu backend, one process
 env steps in which a joint or the base moved faster than 30, 100 and 1,000 (rad/s or m/s), the
 rewards larger than 1 in size, and the largest. go1-flat's per-step rewards stay under 1 under
 such actions when its physics holds (0.85 at the most in 1.5 M env steps). lab resets an env only
-past 1e6 (`Sim.unstable`): a state between those speeds is stepped, observed and rewarded.
+past `env.unstable_velocity` (`Sim.unstable`; 1e6 unless a task sets less): a state between
+those speeds is stepped, observed and rewarded, and counted here.
 """
 
 from __future__ import annotations

@@ -500,6 +500,19 @@ def test_a_runaway_velocity_counts_as_unstable(make_env):
     assert_only_env_0_unstable(env, obs, reward, terminated, info)
 
 
+def test_a_task_s_lower_speed_limit_counts_a_runaway_as_unstable(make_env):
+    """`unstable_velocity`: a pole spun to 200 rad/s diverged at a limit of 100, not at the
+    default 1e6."""
+    strict, loose = make_env(seed=15, unstable_velocity=100.0), make_env(seed=15)
+    for env in (strict, loose):
+        env.reset()
+        env.sim.qvel[0, POLE] = 200.0
+    obs, reward, terminated, _, info = strict.step(zeros())
+    assert_only_env_0_unstable(strict, obs, reward, terminated, info)
+    _, _, _, _, info = loose.step(zeros())
+    assert not info["terminations"][:, loose.termination_names.index(UNSTABLE)].any()
+
+
 @pytest.mark.parametrize("pole_vel", [float("nan"), 1e7])
 def test_a_state_mujoco_rejects_counts_as_unstable(make_env, pole_vel):
     env = make_env(seed=16)

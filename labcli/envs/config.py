@@ -9,6 +9,10 @@ from typing import Any, ClassVar, Literal
 import annotated_types
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+# A velocity this large (rad/s or m/s; or NaN) means the integrator diverged: such envs are
+# reset. A task may set a lower limit (`unstable_velocity`).
+UNSTABLE_VELOCITY = 1e6
+
 
 class TaskConfig(BaseModel):
     """Settings every task has; a task subclasses it to add its own (reset ranges, bounds...)."""
@@ -30,6 +34,10 @@ class TaskConfig(BaseModel):
     num_envs: int = Field(64, gt=0, le=2**20, description="parallel environments")
     episode_length_s: float = Field(5.0, gt=0, le=1e6, description="time-out, in seconds")
     decimation: int = Field(2, gt=0, le=1000, description="physics steps per env step")
+    unstable_velocity: float = Field(UNSTABLE_VELOCITY, gt=0, description="a joint or the base "
+                                     "faster than this (rad/s or m/s) ends the episode as "
+                                     "diverged, as a non-finite state does: a runaway of the "
+                                     "physics, not a state to learn from")
     sim_dt: float | None = Field(None, gt=0, description="physics step; None keeps the MJCF's")
     solver_iterations: int | None = Field(None, gt=0, le=1000, description="the constraint "
                                           "solver's iterations; None keeps the MJCF's")

@@ -73,6 +73,7 @@ class LabVecEnv(gym.vector.VectorEnv):
         self.backend = backend or default_backend(device)
         self.sim = make_sim(self.backend, model, cfg.num_envs, device, cfg.threads, cfg.nconmax,
                             cfg.njmax, spec.task_class.per_env_fields(cfg), physics)
+        self.sim.unstable_velocity = cfg.unstable_velocity
         self.task = spec.task_class(cfg, self.sim)
         self.num_envs = cfg.num_envs
         self.device = self.sim.device

@@ -9,14 +9,13 @@ from typing import TYPE_CHECKING
 import mujoco
 import torch
 
+from labcli.envs.config import UNSTABLE_VELOCITY
 from labcli.errors import LabError
 
 if TYPE_CHECKING:
     from labcli.envs.sim.chunks import ShardPhysics
 
 BACKENDS = ("cpu", "warp")
-# A velocity this large (or NaN) means the integrator diverged; such envs are reset.
-UNSTABLE_VELOCITY = 1e6
 
 
 class Sim:
@@ -36,6 +35,7 @@ class Sim:
     ctrl: torch.Tensor
     sensordata: torch.Tensor
     nthread: int | None = None  # CPU threads that step the physics, where a backend has them
+    unstable_velocity: float = UNSTABLE_VELOCITY  # rad/s or m/s, past which `unstable` flags
 
     def step(self, nstep: int, controls: torch.Tensor | None = None,
              substep: Callable[[int], None] | None = None) -> None:
@@ -54,7 +54,7 @@ class Sim:
         """Envs whose state diverged (non-finite or absurd velocities)."""
         # The largest speed, not `all` over a boolean matrix: the same answer (a NaN's max is
         # NaN, which is not below the limit) at 0.3-0.4 of the cost with 14-29 velocities.
-        return ~(self.qvel.abs().amax(dim=1) < UNSTABLE_VELOCITY)
+        return ~(self.qvel.abs().amax(dim=1) < self.unstable_velocity)
 
     def any_unstable(self) -> bool:
         """Whether `unstable()` flags any env, read on the host (on a GPU, a wait for it)."""

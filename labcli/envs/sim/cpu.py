@@ -17,7 +17,7 @@ import torch
 from mujoco import rollout
 
 from labcli.envs.cores import available_memory, cores, gib
-from labcli.envs.sim import UNSTABLE_VELOCITY, Sim
+from labcli.envs.sim import Sim
 from labcli.envs.sim.chunks import ChunkStepper, ShardPhysics
 from labcli.errors import LabError
 
@@ -260,7 +260,7 @@ class CpuSim(Sim):
 
     def any_unstable(self) -> bool:
         # One reduction over all envs, not a row each: the largest speed (NaN if any is NaN).
-        return not float(torch.linalg.vector_norm(self.qvel, ord=math.inf)) < UNSTABLE_VELOCITY
+        return not float(torch.linalg.vector_norm(self.qvel, ord=math.inf)) < self.unstable_velocity
 
     def model_field(self, name: str) -> torch.Tensor:
         if name not in self._fields:
