@@ -3,7 +3,7 @@ each task should take: on a 2-core laptop (`--backend cpu`) or on one GPU (`--ba
 
   python bench/bench_success.py [--tasks ant,humanoid] [--framework rsl_rl]
                                 [--backend cpu|warp] [--seeds 0,1,2] [--success 0.9]
-                                [--set KEY=VALUE ...] [--json FILE] [--keep DIR]
+                                [--played] [--set KEY=VALUE ...] [--json FILE] [--keep DIR]
 
 Each run is `lab train --task T --framework F --seed S --backend B` as a user runs it (by
 this Python's `-m labcli`), in a throwaway logs dir, one after another; it is stopped (Ctrl-C,
@@ -15,7 +15,10 @@ From its TensorBoard events: the seconds of training (from the run's first event
 start-up) and steps until the logged success rate first reached --success, the median
 steps/s, and the final success rate; then, per task, the median over the seeds and how many
 seeds got there within the goal (a run that never got there counts as never, and a median of
-nevers is never).
+nevers is never). `--played` judges each run by its checkpoints instead, as `lab play` plays
+them (64 episodes without the exploration noise, on the CPU): the seconds and steps of
+training at which the first one that reached --success was saved. Training's own success
+counts episodes played under the noise, which can hide a policy that has learnt.
 """
 
 from __future__ import annotations
@@ -36,6 +39,8 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_scale import conclude, figures  # noqa: E402
 
+from labcli.runs.bench import played_to_success  # noqa: E402
+
 # Seconds of training to success on a 2-core machine that a robot task should take at its
 # defaults: ant and humanoid as Isaac Lab's classic tasks, the robots as a laptop allows.
 GOALS_S = {
@@ -48,7 +53,7 @@ START_S = 60
 
 
 def train(task: str, framework: str, backend: str, seed: int, success: float,
-          overrides: list[str], keep: Path | None = None) -> dict:
+          overrides: list[str], keep: Path | None = None, played: bool = False) -> dict:
     cmd = [sys.executable, "-m", "labcli", "train", "--task", task, "--framework", framework,
            "--seed", str(seed), "--backend", backend,
            *(arg for item in overrides for arg in ("--set", item))]
@@ -69,27 +74,40 @@ def train(task: str, framework: str, backend: str, seed: int, success: float,
         run_dir = max(Path(logs, framework, task).iterdir(), key=lambda d: d.stat().st_mtime)
         row = {"task": task, "framework": framework, "seed": seed, "set": overrides,
                **figures(run_dir, success)}
+        if played:
+            row["played"] = played_to_success(run_dir, success)
     print(json.dumps(row), flush=True)
     return row
 
 
+def reached(row: dict) -> tuple[float | None, int | None]:
+    """The seconds and steps of training to success: played checkpoints' where the row has
+    them (`--played`), else the logged success rate's."""
+    if "played" in row:
+        played = row["played"] or {}
+        return played.get("seconds"), played.get("steps")
+    return row.get("success_s"), row.get("success_steps")
+
+
 def median_seconds(rows: list[dict]) -> float | None:
     """The median of the seeds' seconds to success, a run that never got there as infinite."""
-    times = [row.get("success_s") or float("inf") for row in rows]
+    times = [reached(row)[0] or float("inf") for row in rows]
     median = statistics.median(times)
     return None if median == float("inf") else median
 
 
 def report(rows: list[dict], success: float, goals: dict[str, float]) -> None:
-    print(f"\n| task | seed | steps/s | success {success} after | steps to it | training s | "
+    judged = "played" if any("played" in row for row in rows) else "success"
+    print(f"\n| task | seed | steps/s | {judged} {success} after | steps to it | training s | "
           "final success |")
     print("| --- | ---: | ---: | ---: | ---: | ---: | ---: |")
     for row in rows:
         if "exit" in row:
             print(f"| {row['task']} | {row['seed']} | exit {row['exit']} |  |  |  |  |")
             continue
-        seconds = f"{row['success_s']:.0f} s" if row["success_s"] is not None else "never"
-        steps = f"{row['success_steps']:,}" if row["success_steps"] is not None else "-"
+        reached_s, reached_steps = reached(row)
+        seconds = f"{reached_s:.0f} s" if reached_s is not None else "never"
+        steps = f"{reached_steps:,}" if reached_steps is not None else "-"
         print(f"| {row['task']} | {row['seed']} | {row['steps_per_s']:,.0f} | {seconds} | "
               f"{steps} | {row['training_s']:.0f} ({row['state']}) | "
               f"{row['final_success']:.2f} |")
@@ -103,7 +121,7 @@ def report(rows: list[dict], success: float, goals: dict[str, float]) -> None:
         if goal is None:  # a task without a goal on this backend: its figures alone
             print(f"| {task} | {shown} | - | - | - |")
             continue
-        within = sum(1 for r in ran if (r.get("success_s") or float("inf")) <= goal)
+        within = sum(1 for r in ran if (reached(r)[0] or float("inf")) <= goal)
         met = "yes" if median is not None and median <= goal else "no"
         print(f"| {task} | {shown} | {goal} s | {within} of {len(ran)} | {met} |")
 
@@ -134,6 +152,8 @@ def main() -> None:
     p.add_argument("--backend", choices=sorted(GOALS_S), default="cpu")
     p.add_argument("--seeds", default="0,1,2")
     p.add_argument("--success", type=float, default=0.9)
+    p.add_argument("--played", action="store_true",
+                   help="judge each run by its checkpoints played without exploration noise")
     p.add_argument("--set", action="append", default=[], dest="overrides", metavar="KEY=VALUE",
                    help="a setting for every run, as lab train's --set (repeatable)")
     p.add_argument("--json", type=Path, help="write the rows here")
@@ -141,7 +161,8 @@ def main() -> None:
     a = p.parse_args()
     about = machine()
     print(about, flush=True)
-    rows = [train(task, a.framework, a.backend, int(seed), a.success, a.overrides, a.keep)
+    rows = [train(task, a.framework, a.backend, int(seed), a.success, a.overrides, a.keep,
+                  a.played)
             for task in a.tasks.split(",") for seed in a.seeds.split(",")]
     report(rows, a.success, GOALS_S[a.backend])
     conclude(rows, {"machine": about}, a.json)

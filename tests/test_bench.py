@@ -40,3 +40,27 @@ def test_the_env_and_its_rollout_take_turns_and_each_rate_is_a_median(monkeypatc
     finally:
         env.close()
         reference.close()
+
+
+def test_a_run_is_judged_by_its_first_checkpoint_that_plays_to_success(tmp_path):
+    """`played_to_success`: the checkpoints in order, each played as `lab play --checkpoint`
+    plays it; the first that reaches the threshold, with the training seconds and steps at
+    which it was saved; None if none reaches it."""
+    import io
+    import json
+
+    from rich.console import Console
+
+    from labcli.runs import play, training
+
+    run = training.train("cartpole", "rsl_rl", num_envs=8, max_iterations=6, logs_dir=tmp_path,
+                         console=Console(file=io.StringIO()),
+                         overrides=["agent.save_interval=2", "agent.num_steps_per_env=8"]).run
+    first = bench.played_to_success(run.dir, 0.0, episodes=8)
+    assert first is not None and first["iteration"] == 2
+    _, played = play.play(checkpoint=run.dir / "model_2.pt", episodes=8, seed=1)
+    assert first["success"] == played.success_rate
+    # Saved after its second iteration's 2 x 8 x 8 steps were logged, within the training.
+    summary = json.loads((run.dir / "summary.json").read_text())
+    assert first["steps"] == 128 and 0 < first["seconds"] < summary["wall_time_s"]
+    assert bench.played_to_success(run.dir, 1.01, episodes=8) is None

@@ -378,14 +378,16 @@ def test_sb3_s_gpu_defaults_take_the_rate_measured_there_and_the_cpu_s_stay():
 
 def test_the_cpu_steps_playground_s_contacts_and_the_gpu_the_model_s_own():
     """go1-flat's CPU defaults: pyramidal cones and feet of 3 contact dimensions on 1,024 envs,
-    and a runaway past 100 rad/s or m/s ended as diverged; on the GPU Menagerie's elliptic
-    cones and feet of 6, which the built model shows, and lab's own limit."""
+    a runaway past 100 rad/s or m/s ended as diverged, and twice the entropy bonus; on the GPU
+    Menagerie's elliptic cones and feet of 6, which the built model shows, lab's own limit and
+    Isaac Lab's bonus."""
     spec, rsl_rl = registry.get_task("go1-flat"), registry.get_framework("rsl_rl")
     cpu, cpu_agent = config.resolve(spec, rsl_rl)
     gpu, gpu_agent = config.resolve(spec, rsl_rl, gpu_scale=True)
     assert (cpu.num_envs, cpu_agent.max_iterations) == (1024, 1000)
     assert (gpu.num_envs, gpu_agent.max_iterations) == (4096, 300)
     assert (cpu.unstable_velocity, gpu.unstable_velocity) == (100.0, 1e6)
+    assert (cpu_agent.entropy_coef, gpu_agent.entropy_coef) == (0.02, 0.01)
     built = {scale: spec.task_class.build_model(cfg, spec.model)
              for scale, cfg in (("cpu", cpu), ("gpu", gpu))}
     assert built["cpu"].opt.cone == mujoco.mjtCone.mjCONE_PYRAMIDAL

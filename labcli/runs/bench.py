@@ -201,6 +201,36 @@ def time_to_success(run_dir: Path, threshold: float) -> tuple[float, int] | None
     return None
 
 
+def played_to_success(run_dir: Path, threshold: float, episodes: int = 64,
+                      seed: int = 1) -> dict | None:
+    """The run's first complete checkpoint whose policy, played as `lab play --checkpoint`
+    plays it (on the CPU, without its exploration noise, `episodes` episodes from `seed`), ended
+    at least `threshold` of them successfully: its iteration, success rate, and the seconds of
+    training (its manifest's time since the run's first event) and env steps (the last logged
+    before it) at which it was saved. None if none did. Training's own success rate counts
+    episodes played under the exploration noise, which can hide a policy that has learnt."""
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    from labcli.runs import checkpoints, play, rundir
+
+    run = rundir.open_run(run_dir)
+    fw = registry.get_framework(run.identity()[1])
+    events = EventAccumulator(str(run_dir), size_guidance={"scalars": 0})
+    events.Reload()
+    start = events.FirstEventTimestamp()
+    logged = events.Scalars(metrics.STEPS_PER_S)
+    for found in fw.checkpoints(run_dir):
+        if not checkpoints.complete(fw, found):
+            continue
+        _, played = play.play(checkpoint=found.path, episodes=episodes, seed=seed)
+        if played.success_rate >= threshold:
+            saved = checkpoints.manifest_path(run_dir, found.iteration).stat().st_mtime
+            steps = max((e.step for e in logged if e.wall_time <= saved), default=0)
+            return {"iteration": found.iteration, "success": played.success_rate,
+                    "seconds": saved - start, "steps": steps}
+    return None
+
+
 def bench(task: str, num_envs: Sequence[int], *, backend: str | None = None,
           device: str | None = None, framework: str | None = None,
           seconds: float = 3.0, threads: Sequence[int] = (),

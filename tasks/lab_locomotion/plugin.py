@@ -84,9 +84,12 @@ G1_ITERATIONS = 3500
 
 
 def _velocity_defaults(num_envs: int, max_iterations: int, gpu_iterations: int | None = None,
-                       cpu_env: dict | None = None, gpu_env: dict | None = None) -> dict:
+                       cpu_env: dict | None = None, gpu_env: dict | None = None,
+                       cpu_rsl_rl: dict | None = None) -> dict:
+    """Isaac Lab's velocity agents in each framework's keys; `cpu_rsl_rl`: rsl_rl's settings
+    measured on the CPU, the GPU keeping the rest's."""
     env = {"env": {"num_envs": num_envs, **(cpu_env or {})}}
-    return _gpu({
+    defaults = _gpu({
         "rsl_rl": {**env, "agent": {
             "max_iterations": max_iterations, "num_steps_per_env": 24,
             "actor_hidden_dims": VELOCITY_NETWORK, "critic_hidden_dims": VELOCITY_NETWORK,
@@ -115,6 +118,10 @@ def _velocity_defaults(num_envs: int, max_iterations: int, gpu_iterations: int |
         # of its 29.5 M steps (docs/benchmarks.md). The CPU's rate stays: not measured there.
     }, max_iterations=gpu_iterations or max_iterations, steps=24, sb3={"learning_rate": 1e-3},
         env=gpu_env)
+    rsl_rl = defaults["rsl_rl"]
+    rsl_rl["warp"]["agent"].update({key: rsl_rl["agent"][key] for key in cpu_rsl_rl or {}})
+    rsl_rl["agent"].update(cpu_rsl_rl or {})
+    return defaults
 
 
 # mjlab's G1 velocity agent (tasks/velocity/config/g1/rl_cfg.py): 24 steps per env, [512, 256,
@@ -170,6 +177,10 @@ LAPTOP_CONTACTS = {"cone": "pyramidal", "robot": {"collisions": [
 # tasks must not import).
 MODEL_CONTACTS = {"cone": None, "robot": {"collisions": None}, "unstable_velocity": 1e6}
 GO1_CPU_ITERATIONS = 1000
+# Twice Isaac Lab's entropy bonus on 2 cores: at 0.01 seeds 1 and 2 stood and turned without
+# walking for 20+ minutes, and seed 0 did on one VM of two; at 0.02 seeds 0 and 2 walked after
+# 14-16 minutes (played: 0.95 at 26 minutes), seed 1 later (docs/benchmarks.md).
+GO1_CPU_RSL_RL = {"entropy_coef": 0.02}
 
 
 def _quadruped_flat(robot: ModuleType, defaults: dict) -> TaskSpec:
@@ -193,7 +204,7 @@ def register_tasks(register):
                    "runs toward a target 1 km ahead", max_iterations=1000))
     register(_quadruped_flat(go1, _velocity_defaults(
         num_envs=1024, max_iterations=GO1_CPU_ITERATIONS, gpu_iterations=300,
-        cpu_env=LAPTOP_CONTACTS, gpu_env=MODEL_CONTACTS)))
+        cpu_env=LAPTOP_CONTACTS, gpu_env=MODEL_CONTACTS, cpu_rsl_rl=GO1_CPU_RSL_RL)))
     register(_quadruped_flat(go2, _velocity_defaults(num_envs=256, max_iterations=300)))
     register(TaskSpec(
         name="g1-flat", task=TASK, config="lab_locomotion.config:G1FlatConfig", model=g1.MODEL,
