@@ -13,7 +13,7 @@ from lab_manipulation.config import YamLiftRewards
 from lab_manipulation.yam import FINGERS
 
 from labcli.envs.mdp import config as c
-from labcli.envs.mdp import robot_model
+from labcli.envs.mdp import objects, robot_model
 from labcli.envs.mdp.description import Collisions, RobotDescription
 from labcli.errors import LabError
 from labcli.gym import make_env
@@ -173,9 +173,9 @@ def test_fingertips_pressing_the_cube_down_touch_it_and_squeeze_tells_them_from_
         assert rewards["squeezed"].tolist() == ([1.0, 1.0] if squeezed else [0.0, 0.0])
         model, height = env.sim.model, env.sim.qpos[:, CUBE_POS][:, 2]
         assert ((height < REST) if not squeezed else (height > REST + 0.08)).all()
-        forces = torch.stack([
-            env.sim.sensordata[:, model.sensor(f"lab:contact:subtree:{finger}:body:cube").adr[0]
-                               + 1:][:, :3].double() for finger in FINGERS], dim=1)
+        # Each finger's contact sensor: the number of contacts, then their net force.
+        starts = [model.sensor(s.name).adr[0] + 1 for s in objects.grasp_sensors("cube", FINGERS)]
+        forces = torch.stack([env.sim.sensordata[:, i:i + 3].double() for i in starts], dim=1)
         ratio = forces.sum(dim=1).norm(dim=1) / forces.norm(dim=2).sum(dim=1)
         assert ((ratio > share[0]) & (ratio < share[1])).all()
     finally:
