@@ -3,11 +3,13 @@ each task should take: on a 2-core laptop (`--backend cpu`) or on one GPU (`--ba
 
   python bench/bench_success.py [--tasks ant,humanoid] [--framework rsl_rl]
                                 [--backend cpu|warp] [--seeds 0,1,2] [--success 0.9]
-                                [--played] [--set KEY=VALUE ...] [--json FILE] [--keep DIR]
+                                [--played] [--stop SECONDS] [--set KEY=VALUE ...]
+                                [--json FILE] [--keep DIR]
 
 Each run is `lab train --task T --framework F --seed S --backend B` as a user runs it (by
 this Python's `-m labcli`), in a throwaway logs dir, one after another; it is stopped (Ctrl-C,
-a checkpoint) once its training has lasted twice the task's goal, else it ends by itself.
+a checkpoint) once its training has lasted twice the task's goal (or `--stop` seconds), else it
+ends by itself.
 `--keep DIR` keeps each run, under DIR/TASK-sSEED, to be played or exported afterwards.
 `--set` passes a setting on to every run (a variant of the defaults held to the same goals,
 e.g. `--set agent.symmetry_augmentation=true`).
@@ -53,11 +55,12 @@ START_S = 60
 
 
 def train(task: str, framework: str, backend: str, seed: int, success: float,
-          overrides: list[str], keep: Path | None = None, played: bool = False) -> dict:
+          overrides: list[str], keep: Path | None = None, played: bool = False,
+          stop_s: float | None = None) -> dict:
     cmd = [sys.executable, "-m", "labcli", "train", "--task", task, "--framework", framework,
            "--seed", str(seed), "--backend", backend,
            *(arg for item in overrides for arg in ("--set", item))]
-    limit = 2 * GOALS_S[backend].get(task, 600) + START_S
+    limit = (stop_s or 2 * GOALS_S[backend].get(task, 600)) + START_S
     with tempfile.TemporaryDirectory(prefix="bench_success_") as scratch:
         logs = keep / f"{task}-s{seed}" if keep else Path(scratch)
         proc = subprocess.Popen(cmd, env={**os.environ, "LAB_LOGS_DIR": str(logs)},
@@ -154,15 +157,20 @@ def main() -> None:
     p.add_argument("--success", type=float, default=0.9)
     p.add_argument("--played", action="store_true",
                    help="judge each run by its checkpoints played without exploration noise")
+    p.add_argument("--stop", type=float, metavar="SECONDS",
+                   help="stop each run after this many seconds of training (default: twice "
+                        "the task's goal)")
     p.add_argument("--set", action="append", default=[], dest="overrides", metavar="KEY=VALUE",
                    help="a setting for every run, as lab train's --set (repeatable)")
     p.add_argument("--json", type=Path, help="write the rows here")
     p.add_argument("--keep", type=Path, metavar="DIR", help="keep the runs under this folder")
     a = p.parse_args()
+    if a.stop is not None and a.stop <= 0:
+        p.error(f"--stop must be more than 0 seconds, got {a.stop:g}")
     about = machine()
     print(about, flush=True)
     rows = [train(task, a.framework, a.backend, int(seed), a.success, a.overrides, a.keep,
-                  a.played)
+                  a.played, a.stop)
             for task in a.tasks.split(",") for seed in a.seeds.split(",")]
     report(rows, a.success, GOALS_S[a.backend])
     conclude(rows, {"machine": about}, a.json)
