@@ -53,6 +53,11 @@ class TaskConfig(BaseModel):
     # explicitly; mjlab steps every robot with implicitfast. Both backends have these three.
     integrator: Literal["euler", "implicitfast", "rk4"] | None = Field(
         None, description="the integrator; None keeps the MJCF's")
+    # MuJoCo's soft contacts let a held object creep: a Panda's grasped cube slid 6 mm in 2 s
+    # (median) and out of the fingers within some panda-lift episodes. Both backends have it.
+    noslip_iterations: int | None = Field(None, ge=0, le=1000, description="iterations of "
+                                          "MuJoCo's noslip solver after the main one, which "
+                                          "removes that creep (0: off); None keeps the MJCF's")
     action_scale: float = Field(1.0, description="policy action in [-1, 1] times this is ctrl")
     clip_actions: float = Field(1.0, gt=0, description="actions are clipped to ±this before "
                                 "the task turns them into controls: the env's action space")

@@ -49,14 +49,15 @@ def load_spec(source: ModelSource) -> mujoco.MjSpec:
 
 def set_options(model: mujoco.MjModel, cfg: Any) -> None:
     """The config's physics options, where it sets them, over the MJCF's: the step
-    (`sim_dt`), the solver's and its line search's iterations, the friction cones, impratio and
-    the integrator."""
+    (`sim_dt`), the solver's, its line search's and the noslip solver's iterations, the
+    friction cones, impratio and the integrator."""
     import mujoco
 
     enums = {"cone": (mujoco.mjtCone, "mjCONE_"), "integrator": (mujoco.mjtIntegrator, "mjINT_")}
     for key, field in (("sim_dt", "timestep"), ("solver_iterations", "iterations"),
                        ("ls_iterations", "ls_iterations"), ("cone", "cone"),
-                       ("impratio", "impratio"), ("integrator", "integrator")):
+                       ("noslip_iterations", "noslip_iterations"), ("impratio", "impratio"),
+                       ("integrator", "integrator")):
         value = getattr(cfg, key, None)
         if key in enums and value is not None:
             enum, prefix = enums[key]
