@@ -53,7 +53,7 @@ from labcli.envs.make import make_env as make_lab_env
 from labcli.envs.shards import ShardedVecEnv
 from labcli.plugins import registry
 from labcli.plugins.policy import one_torch_thread
-from labcli.runs.bench import bench, env_rate, rate, time_to_success
+from labcli.runs.bench import bench, cpu_name, env_rate, rate, time_to_success
 
 REPO = Path(__file__).resolve().parents[1]
 TASK = "cartpole"
@@ -314,11 +314,7 @@ def thread_table(rates: dict[tuple[str, str, int, int], dict], framework: str | 
 
 # Report ---------------------------------------------------------------------------------------
 def header() -> dict:
-    cpu = platform.processor() or platform.machine()
-    cpuinfo = Path("/proc/cpuinfo")
-    if cpuinfo.exists():
-        names = re.findall(r"^model name\s*:\s*(.+)$", cpuinfo.read_text(), re.M)
-        cpu = names[0] if names else cpu
+    cpu = cpu_name()
     versions = {}
     for dist in DISTRIBUTIONS:
         try:

@@ -41,7 +41,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_scale import conclude, figures  # noqa: E402
 
-from labcli.runs.bench import played_to_success  # noqa: E402
+from labcli.runs.bench import cpu_name, played_to_success  # noqa: E402
 
 # Seconds of training to success on a 2-core machine that a robot task should take at its
 # defaults: ant and humanoid as Isaac Lab's classic tasks, the robots as a laptop allows.
@@ -136,7 +136,7 @@ def machine() -> str:
              "rl-games")
     found = ", ".join(f"{n} {_version(n)}" for n in names)
     gpus = ", ".join(torch.cuda.get_device_name(i) for i in range(torch.cuda.device_count()))
-    return (f"{os.cpu_count()} cores ({platform.processor() or platform.machine()})"
+    return (f"{os.cpu_count()} cores ({cpu_name()})"
             f"{'; ' + gpus if gpus else ''}; Python {platform.python_version()}, torch "
             f"{torch.__version__}, {found}")
 

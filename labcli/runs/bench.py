@@ -6,6 +6,8 @@ import contextlib
 import functools
 import io
 import itertools
+import platform
+import re
 import statistics
 import tempfile
 import time
@@ -199,6 +201,15 @@ def time_to_success(run_dir: Path, threshold: float) -> tuple[float, int] | None
         if scalar.value >= threshold:
             return scalar.wall_time - start, scalar.step
     return None
+
+
+def cpu_name() -> str:
+    """The CPU's model name as Linux reports it (`platform.processor()` is empty there), else
+    what `platform` knows."""
+    cpuinfo = Path("/proc/cpuinfo")
+    names = (re.findall(r"^model name\s*:\s*(.+)$", cpuinfo.read_text(), re.M)
+             if cpuinfo.exists() else [])
+    return names[0] if names else platform.processor() or platform.machine()
 
 
 def played_to_success(run_dir: Path, threshold: float, episodes: int = 64,
