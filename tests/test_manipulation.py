@@ -292,9 +292,9 @@ def test_a_scripted_grasp_lifts_the_cube_and_the_lift_terms_see_it():
 def test_a_held_cube_creeps_down_the_fingers_unless_the_noslip_solver_holds_it(
         overrides, least, most):
     """The scripted grasp's cube held 25 cm up for 5 s more, the hand still: MuJoCo's soft
-    contacts let it slide down the pads (6-16 mm, the scene's own contacts), as the cubes that
-    trained policies carried to their targets slid out of the fingers before the time-out;
-    two iterations of the noslip solver hold it to a fraction of a millimetre."""
+    contacts let it slide down the pads (6-16 mm with the scene's own contacts, nearer the
+    fingertips' edge with every second); two iterations of the noslip solver hold it to a
+    fraction of a millimetre."""
     env = lift(2, "env.episode_length_s=20", *overrides)
     try:
         assert env.sim.model.opt.noslip_iterations == (2 if overrides else 0)

@@ -53,8 +53,8 @@ class TaskConfig(BaseModel):
     # explicitly; mjlab steps every robot with implicitfast. Both backends have these three.
     integrator: Literal["euler", "implicitfast", "rk4"] | None = Field(
         None, description="the integrator; None keeps the MJCF's")
-    # MuJoCo's soft contacts let a held object creep: a Panda's grasped cube slid 6 mm in 2 s
-    # (median) and out of the fingers within some panda-lift episodes. Both backends have it.
+    # MuJoCo's soft contacts let a held object creep: a cube held still in a Panda's fingers
+    # slides 6-16 mm down them in 5 s (tests/test_manipulation.py). Both backends have it.
     noslip_iterations: int | None = Field(None, ge=0, le=1000, description="iterations of "
                                           "MuJoCo's noslip solver after the main one, which "
                                           "removes that creep (0: off); None keeps the MJCF's")
