@@ -70,8 +70,9 @@ def _spec(name: str, config: str, description: str, max_iterations: int,
 
 
 # On 2 cores humanoid's CPU runs at 1,024 envs: 16k training steps/s (5.7-5.9k at 256), and
-# rsl_rl's seed 0 played to success 0.97 from 12 minutes of training, where 256 envs ended
-# at 0 after 31 (docs/benchmarks.md). ant reaches 0.9 in about a minute at 256.
+# rsl_rl's checkpoints played to success 0.9 after a median 817 s of training over three
+# seeds, where 256 envs ended at 0 after 31 minutes (docs/benchmarks.md). ant reaches 0.9 in
+# about a minute at 256.
 HUMANOID_CPU_ENVS = 1024
 
 
