@@ -52,6 +52,8 @@ GOALS_S = {
 }
 # Start-up (imports, the model, the first event) is not training: it gets this much on top.
 START_S = 60
+# Checkpoints played at once after a run: each play is its own process on one core.
+PLAY_WORKERS = min(8, os.cpu_count() or 1)
 
 
 def train(task: str, framework: str, backend: str, seed: int, success: float,
@@ -78,7 +80,7 @@ def train(task: str, framework: str, backend: str, seed: int, success: float,
         row = {"task": task, "framework": framework, "seed": seed, "set": overrides,
                **figures(run_dir, success)}
         if played:
-            row["played"] = played_to_success(run_dir, success)
+            row["played"] = played_to_success(run_dir, success, workers=PLAY_WORKERS)
     print(json.dumps(row), flush=True)
     return row
 

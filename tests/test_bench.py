@@ -44,8 +44,8 @@ def test_the_env_and_its_rollout_take_turns_and_each_rate_is_a_median(monkeypatc
 
 def test_a_run_is_judged_by_its_first_checkpoint_that_plays_to_success(tmp_path):
     """`played_to_success`: the checkpoints in order, each played as `lab play --checkpoint`
-    plays it; the first that reaches the threshold, with the training seconds and steps at
-    which it was saved; None if none reaches it."""
+    plays it (one at a time or several at once); the first that reaches the threshold, with the
+    training seconds and steps at which it was saved; None if none reaches it."""
     import io
     import json
 
@@ -63,4 +63,6 @@ def test_a_run_is_judged_by_its_first_checkpoint_that_plays_to_success(tmp_path)
     # Saved after its second iteration's 2 x 8 x 8 steps were logged, within the training.
     summary = json.loads((run.dir / "summary.json").read_text())
     assert first["steps"] == 128 and 0 < first["seconds"] < summary["wall_time_s"]
-    assert bench.played_to_success(run.dir, 1.01, episodes=8) is None
+    # Played two at a time, each in its own process: the same answer.
+    assert bench.played_to_success(run.dir, 0.0, episodes=8, workers=2) == first
+    assert bench.played_to_success(run.dir, 1.01, episodes=8, workers=2) is None

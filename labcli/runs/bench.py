@@ -212,17 +212,27 @@ def cpu_name() -> str:
     return names[0] if names else platform.processor() or platform.machine()
 
 
+def _played_success(checkpoint: Path, episodes: int, seed: int) -> float:
+    from labcli.runs import play
+
+    return play.play(checkpoint=checkpoint, episodes=episodes, seed=seed)[1].success_rate
+
+
 def played_to_success(run_dir: Path, threshold: float, episodes: int = 64,
-                      seed: int = 1) -> dict | None:
+                      seed: int = 1, workers: int = 1) -> dict | None:
     """The run's first complete checkpoint whose policy, played as `lab play --checkpoint`
     plays it (on the CPU, without its exploration noise, `episodes` episodes from `seed`), ended
     at least `threshold` of them successfully: its iteration, success rate, and the seconds of
     training (its manifest's time since the run's first event) and env steps (the last logged
     before it) at which it was saved. None if none did. Training's own success rate counts
-    episodes played under the exploration noise, which can hide a policy that has learnt."""
+    episodes played under the noise, which can hide a policy that has learnt. `workers` > 1
+    plays that many checkpoints at once, each in its own process (a play runs on one core)."""
+    import concurrent.futures
+    import multiprocessing
+
     from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
-    from labcli.runs import checkpoints, play, rundir
+    from labcli.runs import checkpoints, rundir
 
     run = rundir.open_run(run_dir)
     fw = registry.get_framework(run.identity()[1])
@@ -230,15 +240,24 @@ def played_to_success(run_dir: Path, threshold: float, episodes: int = 64,
     events.Reload()
     start = events.FirstEventTimestamp()
     logged = events.Scalars(metrics.STEPS_PER_S)
-    for found in fw.checkpoints(run_dir):
-        if not checkpoints.complete(fw, found):
-            continue
-        _, played = play.play(checkpoint=found.path, episodes=episodes, seed=seed)
-        if played.success_rate >= threshold:
-            saved = checkpoints.manifest_path(run_dir, found.iteration).stat().st_mtime
-            steps = max((e.step for e in logged if e.wall_time <= saved), default=0)
-            return {"iteration": found.iteration, "success": played.success_rate,
-                    "seconds": saved - start, "steps": steps}
+    found = [c for c in fw.checkpoints(run_dir) if checkpoints.complete(fw, c)]
+    pool = (concurrent.futures.ProcessPoolExecutor(
+        workers, mp_context=multiprocessing.get_context("spawn")) if workers > 1 else None)
+    play_all = pool.map if pool else map
+    judge = functools.partial(_played_success, episodes=episodes, seed=seed)
+    try:
+        for first in range(0, len(found), workers):
+            batch = found[first:first + workers]
+            for checkpoint, rate in zip(batch, play_all(judge, [c.path for c in batch]),
+                                        strict=True):
+                if rate >= threshold:
+                    saved = checkpoints.manifest_path(run_dir, checkpoint.iteration).stat().st_mtime
+                    steps = max((e.step for e in logged if e.wall_time <= saved), default=0)
+                    return {"iteration": checkpoint.iteration, "success": rate,
+                            "seconds": saved - start, "steps": steps}
+    finally:
+        if pool:
+            pool.shutdown(cancel_futures=True)
     return None
 
 
