@@ -480,7 +480,7 @@ def test_the_summary_keeps_the_last_ended_episodes_figures(tmp_path, monkeypatch
 
 def test_a_reward_weight_changes_after_its_steps_and_a_restored_env_keeps_it():
     """panda-lift's curriculum, brought to 3 steps: the action-rate weight is Isaac Lab's -1e-4
-    (per second: x 0.02 s a step) for 3 steps, then -0.1; the weighted term in the step's reward
+    (per second: x 0.02 s a step) for 3 steps, then -0.5; the weighted term in the step's reward
     follows; an env restored from a state saved after the change weighs the new way."""
     env = lift(2, "env.curriculum.action_rate.num_steps=3")
     other = lift(2, "env.curriculum.action_rate.num_steps=3")
@@ -491,9 +491,9 @@ def test_a_reward_weight_changes_after_its_steps_and_a_restored_env_keeps_it():
             action = torch.full((2, 8), 0.1 * (step + 1))
             env.step(action)
             seen.append(float(env._weights[0, column]))
-        assert seen == pytest.approx([-1e-4 * 0.02] * 2 + [-0.1 * 0.02] * 3)
+        assert seen == pytest.approx([-1e-4 * 0.02] * 2 + [-0.5 * 0.02] * 3)
         rate = float(env.task.reward_terms()["action_rate"][0])
-        assert float(env._weighted[0, column]) == pytest.approx(-0.1 * 0.02 * rate, rel=1e-5)
+        assert float(env._weighted[0, column]) == pytest.approx(-0.5 * 0.02 * rate, rel=1e-5)
         assert float(other._weights[0, column]) == pytest.approx(-1e-4 * 0.02)
         other.set_state(env.get_state())
         assert torch.equal(other._weights, env._weights)
