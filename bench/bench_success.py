@@ -46,7 +46,8 @@ from labcli.runs.bench import cpu_name, played_to_success  # noqa: E402
 # Seconds of training to success on a 2-core machine that a robot task should take at its
 # defaults: ant and humanoid as Isaac Lab's classic tasks, the robots as a laptop allows.
 GOALS_S = {
-    "cpu": {"ant": 180, "humanoid": 900, "go1-flat": 1200, "g1-flat": 2700, "panda-reach": 600},
+    "cpu": {"ant": 180, "humanoid": 900, "go1-flat": 1200, "go2-flat": 1200, "g1-flat": 2700,
+            "panda-reach": 600},
     # One GPU: the G1 walking, the Panda reaching and lifting (on three seeds of three).
     "warp": {"g1-flat": 600, "panda-reach": 60, "panda-lift": 180},
 }

@@ -212,10 +212,10 @@ def register_tasks(register):
     register(_spec("humanoid", "HumanoidConfig", "Isaac Lab's Humanoid: a 17-joint humanoid "
                    "runs toward a target 1 km ahead", max_iterations=1000,
                    num_envs=HUMANOID_CPU_ENVS))
-    register(_quadruped_flat(go1, _velocity_defaults(
-        num_envs=1024, max_iterations=GO1_CPU_ITERATIONS, gpu_iterations=300,
-        cpu_env=LAPTOP_CONTACTS, gpu_env=MODEL_CONTACTS, cpu_rsl_rl=GO1_CPU_RSL_RL)))
-    register(_quadruped_flat(go2, _velocity_defaults(num_envs=256, max_iterations=300)))
+    for robot in (go1, go2):
+        register(_quadruped_flat(robot, _velocity_defaults(
+            num_envs=1024, max_iterations=GO1_CPU_ITERATIONS, gpu_iterations=300,
+            cpu_env=LAPTOP_CONTACTS, gpu_env=MODEL_CONTACTS, cpu_rsl_rl=GO1_CPU_RSL_RL)))
     register(TaskSpec(
         name="g1-flat", task=TASK, config="lab_locomotion.config:G1FlatConfig", model=g1.MODEL,
         description="mjlab's Velocity-Flat-Unitree-G1: MuJoCo Menagerie's Unitree G1 humanoid "
