@@ -133,10 +133,11 @@ class LiftEvents(c.Group):
 class LiftCurriculum(c.Group):
     # Isaac Lab's: the smoothness penalties heavier after 10,000 env steps (about 417
     # iterations of 24 steps), once the arm has found the cube; the action rate's five times
-    # Isaac Lab's -0.1. At -0.1 the policies played without noise changed their actions by ~1
-    # (0.5 rad) per joint every step while they held the cube, which slid out of the fingers
-    # after it reached the target; at -0.5, by ~0.4, and on one H200 seed 0 played 0.91 after
-    # 700 iterations (124 s; never within 1,500 at -0.1) and seed 1 0.75 (0.38 at 1,000).
+    # Isaac Lab's -0.1. At -0.1 the policies played without noise changed their actions by
+    # 0.8-1.6 (0.5 rad a unit) per joint every step while they held the cube, which slid out
+    # of the fingers after it reached the target; at -0.5 by 0.3-0.6, and on one H200 seed 0
+    # played 0.91 after 700 iterations (125 s; never within 1,500 at -0.1) and seed 1 0.75
+    # (0.38 at 1,000).
     action_rate: c.RewardWeight | None = c.RewardWeight(term="action_rate", weight=-0.5,
                                                         num_steps=10_000)
     joint_vel: c.RewardWeight | None = c.RewardWeight(term="joint_vel", weight=-0.1,
