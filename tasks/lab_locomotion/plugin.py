@@ -184,12 +184,13 @@ LAPTOP_CONTACTS = {"cone": "pyramidal", "robot": {"collisions": [
 # lab's own limit: UNSTABLE_VELOCITY (labcli/envs/config.py, whose pydantic registering the
 # tasks must not import).
 MODEL_CONTACTS = {"cone": None, "robot": {"collisions": None}, "unstable_velocity": 1e6}
-GO1_CPU_ITERATIONS = 1000
+QUADRUPED_CPU_ITERATIONS = 1000
 # Twice Isaac Lab's entropy bonus on 2 cores: at 0.01 seeds 1 and 2 stood and turned without
 # walking for 20+ minutes, and seed 0 did on one VM of two; at 0.02 the checkpoints played to
 # success 0.9 after a median 767 s over three seeds, seed 1 still standing and turning after
-# 21 minutes (docs/benchmarks.md).
-GO1_CPU_RSL_RL = {"entropy_coef": 0.02}
+# 21 minutes (docs/benchmarks.md). The Go2 takes the Go1's CPU settings: its three seeds played
+# to 0.9 after a median 667 s.
+QUADRUPED_CPU_RSL_RL = {"entropy_coef": 0.02}
 
 
 def _quadruped_flat(robot: ModuleType, defaults: dict) -> TaskSpec:
@@ -214,8 +215,8 @@ def register_tasks(register):
                    num_envs=HUMANOID_CPU_ENVS))
     for robot in (go1, go2):
         register(_quadruped_flat(robot, _velocity_defaults(
-            num_envs=1024, max_iterations=GO1_CPU_ITERATIONS, gpu_iterations=300,
-            cpu_env=LAPTOP_CONTACTS, gpu_env=MODEL_CONTACTS, cpu_rsl_rl=GO1_CPU_RSL_RL)))
+            num_envs=1024, max_iterations=QUADRUPED_CPU_ITERATIONS, gpu_iterations=300,
+            cpu_env=LAPTOP_CONTACTS, gpu_env=MODEL_CONTACTS, cpu_rsl_rl=QUADRUPED_CPU_RSL_RL)))
     register(TaskSpec(
         name="g1-flat", task=TASK, config="lab_locomotion.config:G1FlatConfig", model=g1.MODEL,
         description="mjlab's Velocity-Flat-Unitree-G1: MuJoCo Menagerie's Unitree G1 humanoid "
