@@ -8,8 +8,8 @@ each task should take: on a 2-core laptop (`--backend cpu`) or on one GPU (`--ba
 
 Each run is `lab train --task T --framework F --seed S --backend B` as a user runs it (by
 this Python's `-m labcli`), in a throwaway logs dir, one after another; it is stopped (Ctrl-C,
-a checkpoint) once its training has lasted twice the task's goal (or `--stop` seconds), else it
-ends by itself.
+a checkpoint) once its training has lasted twice the task's goal (or `--stop` seconds, counted
+from its TensorBoard file's appearance, after start-up), else it ends by itself.
 `--keep DIR` keeps each run, under DIR/TASK-sSEED, to be played or exported afterwards.
 `--set` passes a setting on to every run (a variant of the defaults held to the same goals,
 e.g. `--set agent.symmetry_augmentation=true`).
@@ -36,6 +36,7 @@ import statistics
 import subprocess
 import sys
 import tempfile
+import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -51,10 +52,31 @@ GOALS_S = {
     # One GPU: the G1 walking, the Panda reaching and lifting (on three seeds of three).
     "warp": {"g1-flat": 600, "panda-reach": 60, "panda-lift": 180},
 }
-# Start-up (imports, the model, the first event) is not training: it gets this much on top.
-START_S = 60
+# Start-up (imports, the model, compiling MuJoCo Warp's kernels on a fresh machine: ~150 s for
+# panda-lift) is not training: a run's time counts from when its TensorBoard file appears, and
+# a run with none after this long is stopped.
+START_LIMIT_S = 900
+POLL_S = 2.0
 # Checkpoints played at once after a run: each play is its own process on one core.
 PLAY_WORKERS = min(8, os.cpu_count() or 1)
+
+
+def stop_after(proc: subprocess.Popen, runs: Path, seconds: float) -> str:
+    """Wait for `proc`; once a run under `runs` has begun its TensorBoard file, give it `seconds`
+    more, then stop it as Ctrl-C does (the run checkpoints and stops). Its stderr."""
+    begun = time.time()
+    started = None
+    while True:
+        try:
+            return proc.communicate(timeout=POLL_S)[1]
+        except subprocess.TimeoutExpired:
+            now = time.time()
+            if started is None and any(f.stat().st_mtime >= begun
+                                       for f in runs.glob("*/events.out.tfevents.*")):
+                started = now
+            if now - (started or begun) >= (START_LIMIT_S if started is None else seconds):
+                proc.send_signal(signal.SIGINT)
+                return proc.communicate()[1]
 
 
 def train(task: str, framework: str, backend: str, seed: int, success: float,
@@ -63,16 +85,12 @@ def train(task: str, framework: str, backend: str, seed: int, success: float,
     cmd = [sys.executable, "-m", "labcli", "train", "--task", task, "--framework", framework,
            "--seed", str(seed), "--backend", backend,
            *(arg for item in overrides for arg in ("--set", item))]
-    limit = (stop_s or 2 * GOALS_S[backend].get(task, 600)) + START_S
+    limit = stop_s or 2 * GOALS_S[backend].get(task, 600)
     with tempfile.TemporaryDirectory(prefix="bench_success_") as scratch:
         logs = keep / f"{task}-s{seed}" if keep else Path(scratch)
         proc = subprocess.Popen(cmd, env={**os.environ, "LAB_LOGS_DIR": str(logs)},
                                 stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
-        try:
-            _, err = proc.communicate(timeout=limit)
-        except subprocess.TimeoutExpired:
-            proc.send_signal(signal.SIGINT)  # as Ctrl-C: the run checkpoints and stops
-            _, err = proc.communicate()
+        err = stop_after(proc, Path(logs, framework, task), limit)
         if proc.returncode not in (0, 130):
             print(f"{shlex.join(cmd)}: exit {proc.returncode}\n{err[-3000:]}", flush=True)
             return {"task": task, "seed": seed, "exit": proc.returncode}
