@@ -246,15 +246,13 @@ def played_to_success(run_dir: Path, threshold: float, episodes: int = 64,
     play_all = pool.map if pool else map
     judge = functools.partial(_played_success, episodes=episodes, seed=seed)
     try:
-        for first in range(0, len(found), workers):
-            batch = found[first:first + workers]
-            for checkpoint, rate in zip(batch, play_all(judge, [c.path for c in batch]),
-                                        strict=True):
-                if rate >= threshold:
-                    saved = checkpoints.manifest_path(run_dir, checkpoint.iteration).stat().st_mtime
-                    steps = max((e.step for e in logged if e.wall_time <= saved), default=0)
-                    return {"iteration": checkpoint.iteration, "success": rate,
-                            "seconds": saved - start, "steps": steps}
+        # In order, up to `workers` at once; those not begun when one succeeds are cancelled.
+        for checkpoint, rate in zip(found, play_all(judge, [c.path for c in found]), strict=True):
+            if rate >= threshold:
+                saved = checkpoints.manifest_path(run_dir, checkpoint.iteration).stat().st_mtime
+                steps = max((e.step for e in logged if e.wall_time <= saved), default=0)
+                return {"iteration": checkpoint.iteration, "success": rate,
+                        "seconds": saved - start, "steps": steps}
     finally:
         if pool:
             pool.shutdown(cancel_futures=True)
