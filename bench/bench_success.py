@@ -19,13 +19,15 @@ steps/s, and the final success rate; then, per task, the median over the seeds a
 seeds got there within the goal (a run that never got there counts as never, and a median of
 nevers is never). `--played` judges each run by its checkpoints instead, as `lab play` plays
 them (64 episodes without the exploration noise, on the CPU): the seconds and steps of
-training at which the first one that reached --success was saved. Training's own success
+training at which the first one that reached --success was saved. With `--backend warp` a
+run's checkpoints are played while the next run trains. Training's own success
 counts episodes played under the noise, which can hide a policy that has learnt.
 """
 
 from __future__ import annotations
 
 import argparse
+import concurrent.futures
 import importlib.metadata
 import json
 import os
@@ -57,8 +59,11 @@ GOALS_S = {
 # a run with none after this long is stopped.
 START_LIMIT_S = 900
 POLL_S = 2.0
-# Checkpoints played at once after a run: each play is its own process on one core.
-PLAY_WORKERS = min(8, os.cpu_count() or 1)
+# Checkpoints played at once, each in its own process on one core: on the CPU after a run, on
+# all cores; on a GPU while the next run trains, on half the host's cores (the GPU would idle
+# through the plays otherwise: about a minute a panda-lift run on 16 cores).
+CORES = os.cpu_count() or 1
+PLAY_WORKERS = {"cpu": min(8, CORES), "warp": max(1, min(8, CORES // 2))}
 
 
 def stop_after(proc: subprocess.Popen, runs: Path, seconds: float) -> str:
@@ -80,28 +85,24 @@ def stop_after(proc: subprocess.Popen, runs: Path, seconds: float) -> str:
 
 
 def train(task: str, framework: str, backend: str, seed: int, success: float,
-          overrides: list[str], keep: Path | None = None, played: bool = False,
-          stop_s: float | None = None) -> dict:
+          overrides: list[str], logs: Path, stop_s: float | None = None
+          ) -> tuple[dict, Path | None]:
+    """One run under logs/TASK-sSEED: its row of figures, and its folder (None if it failed)."""
     cmd = [sys.executable, "-m", "labcli", "train", "--task", task, "--framework", framework,
            "--seed", str(seed), "--backend", backend,
            *(arg for item in overrides for arg in ("--set", item))]
     limit = stop_s or 2 * GOALS_S[backend].get(task, 600)
-    with tempfile.TemporaryDirectory(prefix="bench_success_") as scratch:
-        logs = keep / f"{task}-s{seed}" if keep else Path(scratch)
-        proc = subprocess.Popen(cmd, env={**os.environ, "LAB_LOGS_DIR": str(logs)},
-                                stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
-        err = stop_after(proc, Path(logs, framework, task), limit)
-        if proc.returncode not in (0, 130):
-            print(f"{shlex.join(cmd)}: exit {proc.returncode}\n{err[-3000:]}", flush=True)
-            return {"task": task, "seed": seed, "exit": proc.returncode}
-        # The newest: a kept folder may hold an earlier run of the same seed.
-        run_dir = max(Path(logs, framework, task).iterdir(), key=lambda d: d.stat().st_mtime)
-        row = {"task": task, "framework": framework, "seed": seed, "set": overrides,
-               **figures(run_dir, success)}
-        if played:
-            row["played"] = played_to_success(run_dir, success, workers=PLAY_WORKERS)
-    print(json.dumps(row), flush=True)
-    return row
+    logs = logs / f"{task}-s{seed}"
+    proc = subprocess.Popen(cmd, env={**os.environ, "LAB_LOGS_DIR": str(logs)},
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    err = stop_after(proc, Path(logs, framework, task), limit)
+    if proc.returncode not in (0, 130):
+        print(f"{shlex.join(cmd)}: exit {proc.returncode}\n{err[-3000:]}", flush=True)
+        return {"task": task, "seed": seed, "exit": proc.returncode}, None
+    # The newest: a kept folder may hold an earlier run of the same seed.
+    run_dir = max(Path(logs, framework, task).iterdir(), key=lambda d: d.stat().st_mtime)
+    return {"task": task, "framework": framework, "seed": seed, "set": overrides,
+            **figures(run_dir, success)}, run_dir
 
 
 def reached(row: dict) -> tuple[float | None, int | None]:
@@ -190,9 +191,26 @@ def main() -> None:
         p.error(f"--stop must be more than 0 seconds, got {a.stop:g}")
     about = machine()
     print(about, flush=True)
-    rows = [train(task, a.framework, a.backend, int(seed), a.success, a.overrides, a.keep,
-                  a.played, a.stop)
-            for task in a.tasks.split(",") for seed in a.seeds.split(",")]
+    with (tempfile.TemporaryDirectory(prefix="bench_success_") as scratch,
+          concurrent.futures.ThreadPoolExecutor(1) as judge):
+        runs = []
+        for task in a.tasks.split(","):
+            for seed in a.seeds.split(","):
+                row, run_dir = train(task, a.framework, a.backend, int(seed), a.success,
+                                     a.overrides, a.keep or Path(scratch), a.stop)
+                played = None
+                if a.played and run_dir:
+                    played = judge.submit(played_to_success, run_dir, a.success,
+                                          workers=PLAY_WORKERS[a.backend])
+                    if a.backend == "cpu":  # its plays would take the next run's cores
+                        played.result()
+                runs.append((row, played))
+        rows = []
+        for row, played in runs:
+            if played:
+                row["played"] = played.result()
+            print(json.dumps(row), flush=True)
+            rows.append(row)
     report(rows, a.success, GOALS_S[a.backend])
     conclude(rows, {"machine": about}, a.json)
 

@@ -25,6 +25,8 @@ from labcli.envs.render import scene as scene_renderer
 from labcli.envs.spec import TaskSpec
 from labcli.errors import LabError
 from labcli.gym import make_env
+from labcli.plugins import registry
+from labcli.runs import config
 
 pytestmark = needs_menagerie("franka_emika_panda")
 QUIET = ["env.observation_noise=false"]
@@ -501,6 +503,23 @@ def test_a_reward_weight_changes_after_its_steps_and_a_restored_env_keeps_it():
     finally:
         env.close()
         other.close()
+
+
+def test_lift_s_cpu_defaults_delay_the_penalties_and_the_gpu_s_keep_isaac_lab_s():
+    """panda-lift on the CPU: 1,024 envs for 2,000 iterations, the smoothness penalties heavier
+    after 24,000 env steps (1,000 iterations), by when 2 cores have learnt to grasp; on the GPU
+    4,096 envs, 1,500 iterations and Isaac Lab's 10,000, for every framework."""
+    spec = registry.get_task("panda-lift")
+    for name in ("rsl_rl", "skrl", "sb3", "rl_games"):
+        fw = registry.get_framework(name)
+        (cpu, cpu_agent), (gpu, gpu_agent) = (config.resolve(spec, fw, gpu_scale=scale)
+                                              for scale in (False, True))
+        assert (cpu.num_envs, cpu_agent.max_iterations) == (1024, 2000), name
+        assert (gpu.num_envs, gpu_agent.max_iterations) == (4096, 1500), name
+        for term in ("action_rate", "joint_vel"):
+            steps = (getattr(cpu.curriculum, term).num_steps,
+                     getattr(gpu.curriculum, term).num_steps)
+            assert steps == (24_000, 10_000), (name, term)
 
 
 def test_a_curriculum_of_a_reward_the_task_lacks_is_one_line():

@@ -137,7 +137,7 @@ class LiftCurriculum(c.Group):
     # 0.8-1.6 (0.5 rad a unit) per joint every step while they held the cube, which slid out
     # of the fingers after it reached the target; at -0.5 by 0.3-0.6, and on one H200 seed 0
     # played 0.91 after 700 iterations (125 s; never within 1,500 at -0.1) and seed 1 0.75
-    # (0.38 at 1,000).
+    # (0.38 at 1,000). On 2 cores, after 24,000 env steps (plugin.py).
     action_rate: c.RewardWeight | None = c.RewardWeight(term="action_rate", weight=-0.5,
                                                         num_steps=10_000)
     joint_vel: c.RewardWeight | None = c.RewardWeight(term="joint_vel", weight=-0.1,

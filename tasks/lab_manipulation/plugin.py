@@ -13,18 +13,19 @@ YAM_LIFT_SUCCESS = "at the 20 s time-out, the cube within 5 cm of the position c
 
 def _ppo(network: list[int], learning_rate: float, epochs: int, entropy: float,
          iterations: int, gamma: float = 0.99, lam: float = 0.95, cpu_envs: int = 256,
-         cpu_iterations: int | None = None) -> dict:
+         cpu_iterations: int | None = None, cpu_env: dict | None = None,
+         gpu_env: dict | None = None) -> dict:
     """An Isaac Lab (or mjlab) manipulation agent (24 steps per env, ELU networks, 4
     mini-batches, the learning rate adapted to a KL of 0.01) in each framework's keys (sb3
-    keeps its learning rate: it has no KL-adapted schedule): `cpu_envs` envs and
-    `cpu_iterations` (else `iterations`) on the CPU, 4,096 envs and `iterations` on the GPU
-    (warp backend). Observations are normalized by their running statistics, as mjlab's
-    agents do and Isaac Lab's do not: without it panda-lift's arm held the cube 10 cm up under
-    every target through 3,000 iterations (with it, 98% of episodes played carried it to the
-    target after 1,069), and on the 2-core CPU 11% of panda-reach's episodes played within the
-    bounds after 1,000 iterations (72% with it)."""
-    env = {"env": {"num_envs": cpu_envs}}
-    gpu = {"env": {"num_envs": 4096}, "agent": {"max_iterations": iterations}}
+    keeps its learning rate: it has no KL-adapted schedule): `cpu_envs` envs,
+    `cpu_iterations` (else `iterations`) and the env's `cpu_env` settings on the CPU, 4,096
+    envs, `iterations` and `gpu_env` on the GPU (warp backend). Observations are normalized by
+    their running statistics, as mjlab's agents do and Isaac Lab's do not: without it
+    panda-lift's arm held the cube 10 cm up under every target through 3,000 iterations (with
+    it, 98% of episodes played carried it to the target after 1,069), and on the 2-core CPU 11%
+    of panda-reach's episodes played within the bounds after 1,000 iterations (72% with it)."""
+    env = {"env": {"num_envs": cpu_envs, **(cpu_env or {})}}
+    gpu = {"env": {"num_envs": 4096, **(gpu_env or {})}, "agent": {"max_iterations": iterations}}
     sb3_gpu = {**gpu, "agent": {**gpu["agent"], "batch_size": 4096 * 24 // 4}}
     cpu_iterations = cpu_iterations or iterations
     return {
@@ -61,10 +62,23 @@ def _ppo(network: list[int], learning_rate: float, epochs: int, entropy: float,
 # 1,000 not on its one (docs/benchmarks.md).
 REACH_AGENT = {"network": [64, 64], "learning_rate": 1e-3, "epochs": 8, "entropy": 0.01,
                "iterations": 1000, "cpu_envs": 2048, "cpu_iterations": 200}
+
+
+def _lift_penalties_after(num_steps: int) -> dict:
+    """panda-lift's curriculum: its smoothness penalties heavier after `num_steps` env steps."""
+    return {"curriculum": {term: {"num_steps": num_steps} for term in ("action_rate", "joint_vel")}}
+
+
 # Isaac Lab's lift agents (lift/config/franka/agents): [256, 128, 64], 5 epochs, lr 1e-4,
-# entropy 0.006, gamma 0.98, 1,500 iterations.
+# entropy 0.006, gamma 0.98, 1,500 iterations. Its curriculum makes the smoothness penalties
+# heavier after 10,000 env steps (config.py): 417 iterations, by which one GPU's 4,096 envs
+# (41 M steps) have learnt to grasp. On 2 cores 1,024 envs had stepped 10 M then, had not, and
+# under the penalties hardly did (the lifting term at 3-6 an episode of the ~55 a carry pays,
+# 17 minutes in); after 24,000 (1,000 iterations, 25 M steps) seed 0 played 0.92 at iteration
+# 1,800, after 41 minutes (docs/benchmarks.md).
 LIFT_AGENT = {"network": [256, 128, 64], "learning_rate": 1e-4, "epochs": 5, "entropy": 0.006,
-              "iterations": 1500, "gamma": 0.98}
+              "iterations": 1500, "gamma": 0.98, "cpu_envs": 1024, "cpu_iterations": 2000,
+              "cpu_env": _lift_penalties_after(24_000), "gpu_env": _lift_penalties_after(10_000)}
 # mjlab's YAM lift agent (tasks/manipulation/config/yam/rl_cfg.py): [512, 256, 128] with
 # observation normalization, 5 epochs, lr 1e-3, entropy 0.005, 5,000 iterations.
 YAM_LIFT_AGENT = {"network": [512, 256, 128], "learning_rate": 1e-3, "epochs": 5,
