@@ -105,6 +105,12 @@ def train(task: str, framework: str, backend: str, seed: int, success: float,
             **figures(run_dir, success)}, run_dir
 
 
+def judge_played(row: dict, run_dir: Path, success: float, workers: int) -> None:
+    """Add to `row` its run's first checkpoint that plays to `success`, and print it."""
+    row["played"] = played_to_success(run_dir, success, workers=workers)
+    print(json.dumps(row), flush=True)
+
+
 def reached(row: dict) -> tuple[float | None, int | None]:
     """The seconds and steps of training to success: played checkpoints' where the row has
     them (`--played`), else the logged success rate's."""
@@ -193,24 +199,21 @@ def main() -> None:
     print(about, flush=True)
     with (tempfile.TemporaryDirectory(prefix="bench_success_") as scratch,
           concurrent.futures.ThreadPoolExecutor(1) as judge):
-        runs = []
+        rows, pending = [], []
         for task in a.tasks.split(","):
             for seed in a.seeds.split(","):
                 row, run_dir = train(task, a.framework, a.backend, int(seed), a.success,
                                      a.overrides, a.keep or Path(scratch), a.stop)
-                played = None
-                if a.played and run_dir:
-                    played = judge.submit(played_to_success, run_dir, a.success,
-                                          workers=PLAY_WORKERS[a.backend])
-                    if a.backend == "cpu":  # its plays would take the next run's cores
-                        played.result()
-                runs.append((row, played))
-        rows = []
-        for row, played in runs:
-            if played:
-                row["played"] = played.result()
-            print(json.dumps(row), flush=True)
-            rows.append(row)
+                rows.append(row)
+                if not (a.played and run_dir):
+                    print(json.dumps(row), flush=True)
+                    continue
+                pending.append(judge.submit(judge_played, row, run_dir, a.success,
+                                            PLAY_WORKERS[a.backend]))
+                if a.backend == "cpu":  # its plays would take the next run's cores
+                    pending[-1].result()
+        for played in pending:
+            played.result()  # a play's error, raised here
     report(rows, a.success, GOALS_S[a.backend])
     conclude(rows, {"machine": about}, a.json)
 
