@@ -74,8 +74,8 @@ def _lift_penalties_after(num_steps: int) -> dict:
 # heavier after 10,000 env steps (config.py): 417 iterations, by which one GPU's 4,096 envs
 # (41 M steps) have learnt to grasp. On 2 cores 1,024 envs had stepped 10 M then, had not, and
 # under the penalties hardly did (the lifting term at 3-6 an episode of the ~55 a carry pays,
-# 17 minutes in); after 24,000 (1,000 iterations, 25 M steps) seed 0 played 0.92 at iteration
-# 1,800, after 41 minutes (docs/benchmarks.md).
+# 17 minutes in); after 24,000 (1,000 iterations, 25 M steps) seeds 0 and 1 played to 0.9 at
+# iterations 1,800 and 1,200, after 41 and 28 minutes (docs/benchmarks.md).
 LIFT_AGENT = {"network": [256, 128, 64], "learning_rate": 1e-4, "epochs": 5, "entropy": 0.006,
               "iterations": 1500, "gamma": 0.98, "cpu_envs": 1024, "cpu_iterations": 2000,
               "cpu_env": _lift_penalties_after(24_000), "gpu_env": _lift_penalties_after(10_000)}
