@@ -24,9 +24,10 @@ def lab(*args: str, logs: Path, **env: str):
 
 
 def offline_runs(run_dir: Path, run_id: str) -> list[Path]:
-    """The W&B run's files of each session (training, resume, export), oldest first."""
+    """The W&B run's files of each session (training, resume, export), oldest first. A session
+    begun in the same second as the one before gets W&B's folder name with "-1" added."""
     return [wandb_records.finished(d)
-            for d in sorted(run_dir.glob(f"wandb/offline-run-*-{run_id}"))]
+            for d in sorted(run_dir.glob(f"wandb/offline-run-*-{run_id}*"))]
 
 
 def test_a_run_s_figures_settings_resume_and_export_go_to_one_wandb_run(tmp_path):
