@@ -1,6 +1,7 @@
-"""yam-lift: mjlab's Lift-Cube-Yam on Menagerie's i2rt YAM, and the building blocks it added
-(a cube added to the model, a site and the collision set of a robot description, the staged
-lift rewards, an end effector's contact with the ground, a curriculum in stages)."""
+"""yam-lift: mjlab's Lift-Cube-Yam on Menagerie's i2rt YAM with panda-lift's rewards, and the
+building blocks it added (a cube added to the model, a site and the collision set of a robot
+description, mjlab's staged lift rewards, a grasp that squeezes, an end effector's contact with
+the ground, a curriculum in stages)."""
 
 import math
 
@@ -109,11 +110,22 @@ def press(env) -> list[torch.Tensor]:
     return plan(env, heights, [0.003] * len(heights))
 
 
+class _StagedRewards(YamLiftRewards):
+    """The task's rewards and mjlab's staged ones beside them."""
+
+    lift: c.ObjectStagedReach | None = c.ObjectStagedReach(
+        weight=1.0, object="cube", command="lift_height", site="pinch", reaching_std=0.2,
+        bringing_std=0.3)
+    lift_precise: c.ObjectGoalDistance | None = c.ObjectGoalDistance(
+        weight=1.0, object="cube", command="lift_height", std=0.05, kernel="gaussian",
+        minimal_height=None)
+
+
 def test_a_scripted_grasp_lifts_the_cube_and_the_lift_terms_see_it():
     """Over the cube with the gripper open, down to it, closed, up by 10 cm: the pads hold the
     4 cm cube (the fingers stop 2 cm out), it leaves the floor with the hand, and the
-    observations and staged rewards match hand-computed values."""
-    env = lift(2)
+    observations, the task's rewards and mjlab's staged ones match hand-computed values."""
+    env = lift(2, rewards=_StagedRewards())
     try:
         model, task = env.sim.model, env.task
         assert not task.robot.floating  # the cube's free joint is not the arm's base
@@ -135,13 +147,21 @@ def test_a_scripted_grasp_lifts_the_cube_and_the_lift_terms_see_it():
         target = task.command("lift_height").command[0, :3].double()
         cube_to_goal = obs[names.index("cube_to_goal.x"):names.index("cube_to_goal.z") + 1]
         assert cube_to_goal == pytest.approx((target - held[0]).tolist(), abs=1e-6)
-        rewards = task.reward_terms()
-        reach = math.exp(-float(ee_to_cube.square().sum()) / 0.2**2)
-        bring = float((target - held[0]).square().sum())
-        assert float(rewards["lift"][0]) == pytest.approx(
-            reach * (1.0 + math.exp(-bring / 0.3**2)), rel=1e-5)
-        assert float(rewards["lift_precise"][0]) == pytest.approx(math.exp(-bring / 0.05**2),
-                                                                  rel=1e-5, abs=1e-12)
+        rewards = {name: float(value[0]) for name, value in task.reward_terms().items()}
+        reach, bring = float(ee_to_cube.norm()), float((target - held[0]).norm())
+        # The task's: held between the pads (squeezed), lifted, carried.
+        assert rewards["reaching_object"] == pytest.approx(1.0 - math.tanh(reach / 0.1),
+                                                           rel=1e-5)
+        assert rewards["grasping_object"] == rewards["lifting_object"] == 1.0
+        assert rewards["object_goal_tracking"] == pytest.approx(1.0 - math.tanh(bring / 0.2),
+                                                                rel=1e-5)
+        assert rewards["object_goal_tracking_fine_grained"] == pytest.approx(
+            1.0 - math.tanh(bring / 0.05), rel=1e-5, abs=1e-7)
+        # mjlab's: reach x (1 + bring), and the precise bring, Gaussian kernels.
+        assert rewards["lift"] == pytest.approx(
+            math.exp(-reach**2 / 0.2**2) * (1.0 + math.exp(-bring**2 / 0.3**2)), rel=1e-5)
+        assert rewards["lift_precise"] == pytest.approx(math.exp(-bring**2 / 0.05**2),
+                                                        rel=1e-5, abs=1e-12)
         assert not env.task.terminations()["ee_ground_collision"].any()
     finally:
         env.close()

@@ -104,7 +104,7 @@ def register_tasks(register):
     register(TaskSpec(
         name="yam-lift", task=TASK, config="lab_manipulation.config:YamLiftConfig",
         model=yam.MODEL,
-        description="mjlab's Lift-Cube-Yam: MuJoCo Menagerie's i2rt YAM picks a cube off the "
-                    "floor and carries it to commanded positions",
+        description="mjlab's Lift-Cube-Yam with panda-lift's rewards: MuJoCo Menagerie's i2rt "
+                    "YAM picks a cube off the floor and carries it to commanded positions",
         success=YAM_LIFT_SUCCESS,
         framework_defaults=_ppo(**YAM_LIFT_AGENT)))
