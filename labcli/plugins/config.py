@@ -19,11 +19,13 @@ class AgentConfig(BaseModel):
     # The keys a resume (`lab train --checkpoint`) may change; the framework applies them over
     # what the checkpoint restores (`TrainContext.changed`). A subclass adds its own, e.g. the
     # learning rate; the network's shape, the rollout's length, the seed can never change.
-    resumable: ClassVar[frozenset[str]] = frozenset({"max_iterations", "save_interval"})
+    resumable: ClassVar[frozenset[str]] = frozenset({"max_iterations", "save_interval", "tf32"})
 
     max_iterations: int = Field(100, gt=0, description="rollout + update cycles in total")
     save_interval: int = Field(50, gt=0, description="iterations between checkpoints")
     seed: int = Field(0, ge=0, lt=2**32, description="seeds the env, torch, NumPy and Python")
+    tf32: bool = Field(False, description="on a GPU, float32 matrix products in TF32 (a 10-bit "
+                       "mantissa; Ampere and later), as mjlab trains; the CPU ignores it")
 
     def check(self, num_envs: int) -> None:
         """Refuse settings that cannot work with `num_envs` envs, before anything is built: a

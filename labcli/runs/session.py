@@ -39,6 +39,7 @@ from labcli.runs import (
     interrupt,
     loading,
     loggers,
+    precision,
     rundir,
     snapshot,
 )
@@ -87,7 +88,7 @@ def run(plan: TrainPlan, stop: interrupt.StopRequest, console: Console,
     data-parallel run (`ranks`) this is one rank's share, and only rank 0 writes."""
     device = distributed.device_of(ranks, check_device(plan.device, plan.backend))
     # Before the library is imported: RSL-RL and skrl join a process group that exists.
-    with distributed.process_group(ranks, device):
+    with distributed.process_group(ranks, device), precision.tf32(plan.agent_cfg.tf32):
         session = _Session(plan, stop, console, command, on_iteration, ranks, device)
         try:
             if plan.run is None or not ranks.writer:

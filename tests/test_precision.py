@@ -1,0 +1,54 @@
+"""agent.tf32: CUDA's float32 matrix products in TF32 while a run trains (as mjlab trains),
+torch's process-wide settings put back when it ends."""
+
+import pytest
+import torch
+import yaml
+from rich.console import Console
+
+from labcli.runs import precision
+from labcli.runs.training import train
+
+
+def _settings() -> tuple:
+    matmul, cudnn = torch.backends.cuda.matmul, torch.backends.cudnn
+    if hasattr(matmul, "fp32_precision"):
+        return matmul.fp32_precision, cudnn.fp32_precision
+    return matmul.allow_tf32, cudnn.allow_tf32
+
+
+def _tf32() -> bool:
+    return _settings() in {("tf32", "tf32"), (True, True)}
+
+
+def test_tf32_holds_within_the_block_and_torch_s_settings_come_back_after_an_error():
+    before = _settings()
+    with precision.tf32(True):
+        assert _tf32()
+        with precision.tf32(False):
+            assert not _tf32()
+        assert _tf32()
+    with pytest.raises(KeyError), precision.tf32(True):
+        raise KeyError("a run that failed")
+    assert _settings() == before
+
+
+def test_a_run_trains_in_tf32_where_its_agent_says_so_and_a_resume_may_change_that(tmp_path):
+    seen: list[bool] = []
+
+    def tell(iteration, steps, figures):
+        seen.append(_tf32())
+        return False
+
+    before = _settings()
+    first = train("cartpole", "rsl_rl", num_envs=8, max_iterations=2, logs_dir=tmp_path,
+                  overrides=["agent.tf32=true"], on_iteration=tell, console=Console(quiet=True))
+    assert seen == [True, True] and _settings() == before
+    params = first.run.dir / "params" / "agent.yaml"
+    assert yaml.safe_load(params.read_text())["tf32"] is True
+    seen.clear()
+    train("cartpole", "rsl_rl", max_iterations=3, logs_dir=tmp_path,
+          checkpoint=str(first.run.dir), overrides=["agent.tf32=false"], on_iteration=tell,
+          console=Console(quiet=True))
+    assert seen == [False] and _settings() == before
+    assert yaml.safe_load(params.read_text())["tf32"] is False
