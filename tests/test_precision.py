@@ -4,6 +4,7 @@ torch's process-wide settings put back when it ends."""
 import pytest
 import torch
 import yaml
+from conftest import needs_warp
 from rich.console import Console
 
 from labcli.runs import precision
@@ -52,3 +53,31 @@ def test_a_run_trains_in_tf32_where_its_agent_says_so_and_a_resume_may_change_th
           console=Console(quiet=True))
     assert seen == [False] and _settings() == before
     assert yaml.safe_load(params.read_text())["tf32"] is False
+
+
+def _matmul_error() -> float:
+    """The relative error of a float32 matrix product on the GPU against float64's."""
+    gen = torch.Generator("cuda").manual_seed(0)
+    a, b = (torch.randn(512, 512, device="cuda", generator=gen) for _ in range(2))
+    exact = a.double() @ b.double()
+    return float((a @ b - exact).norm() / exact.norm())
+
+
+@pytest.mark.gpu
+@needs_warp()
+def test_on_a_gpu_a_tf32_run_s_products_lose_tf32_s_digits_and_training_goes_on(tmp_path):
+    """TF32 keeps 10 bits of the mantissa: a product's relative error grows from float32's
+    ~1e-7 to ~1e-4 inside a tf32 run (on an Ampere or later GPU), and the env's and update's
+    CUDA graphs run under it."""
+    errors: list[float] = []
+
+    def tell(iteration, steps, figures):
+        errors.append(_matmul_error())
+        return False
+
+    outcome = train("cartpole", "rsl_rl", backend="warp", num_envs=256, max_iterations=3,
+                    logs_dir=tmp_path, overrides=["agent.tf32=true"], on_iteration=tell,
+                    console=Console(quiet=True))
+    assert len(errors) == 3 and min(errors) > 5e-5
+    assert _matmul_error() < 1e-5
+    assert outcome.summary["iterations"] == 3
