@@ -19,18 +19,16 @@ import torch
 def tf32(enabled: bool) -> Iterator[None]:
     """Within the block, CUDA's float32 matrix products and convolutions in TF32 where
     `enabled`, in full float32 where not; torch's settings as they were after it."""
-    matmul, cudnn = torch.backends.cuda.matmul, torch.backends.cudnn
-    if hasattr(matmul, "fp32_precision"):  # torch 2.9 and later
-        previous = matmul.fp32_precision, cudnn.fp32_precision
-        matmul.fp32_precision = cudnn.fp32_precision = "tf32" if enabled else "ieee"
-        try:
-            yield
-        finally:
-            matmul.fp32_precision, cudnn.fp32_precision = previous
-        return
-    previous = matmul.allow_tf32, cudnn.allow_tf32
-    matmul.allow_tf32 = cudnn.allow_tf32 = enabled
+    backends = torch.backends.cuda.matmul, torch.backends.cudnn
+    if hasattr(backends[0], "fp32_precision"):  # torch 2.9 and later
+        name, value = "fp32_precision", "tf32" if enabled else "ieee"
+    else:
+        name, value = "allow_tf32", enabled
+    previous = [getattr(backend, name) for backend in backends]
+    for backend in backends:
+        setattr(backend, name, value)
     try:
         yield
     finally:
-        matmul.allow_tf32, cudnn.allow_tf32 = previous
+        for backend, setting in zip(backends, previous, strict=True):
+            setattr(backend, name, setting)
