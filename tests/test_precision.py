@@ -34,7 +34,7 @@ def test_tf32_holds_within_the_block_and_torch_s_settings_come_back_after_an_err
     assert _settings() == before
 
 
-def test_a_run_trains_in_tf32_where_its_agent_says_so_and_a_resume_may_change_that(tmp_path):
+def test_a_run_trains_in_tf32_by_default_and_a_resume_may_change_that(tmp_path):
     seen: list[bool] = []
 
     def tell(iteration, steps, figures):
@@ -43,7 +43,7 @@ def test_a_run_trains_in_tf32_where_its_agent_says_so_and_a_resume_may_change_th
 
     before = _settings()
     first = train("cartpole", "rsl_rl", num_envs=8, max_iterations=2, logs_dir=tmp_path,
-                  overrides=["agent.tf32=true"], on_iteration=tell, console=Console(quiet=True))
+                  on_iteration=tell, console=Console(quiet=True))
     assert seen == [True, True] and _settings() == before
     params = first.run.dir / "params" / "agent.yaml"
     assert yaml.safe_load(params.read_text())["tf32"] is True

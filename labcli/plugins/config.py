@@ -24,8 +24,9 @@ class AgentConfig(BaseModel):
     max_iterations: int = Field(100, gt=0, description="rollout + update cycles in total")
     save_interval: int = Field(50, gt=0, description="iterations between checkpoints")
     seed: int = Field(0, ge=0, lt=2**32, description="seeds the env, torch, NumPy and Python")
-    tf32: bool = Field(False, description="on a GPU, float32 matrix products in TF32 (a 10-bit "
-                       "mantissa; Ampere and later), as mjlab trains; the CPU ignores it")
+    tf32: bool = Field(True, description="on a GPU, float32 matrix products in TF32 (a 10-bit "
+                       "mantissa; Ampere and later), as mjlab trains; false: full float32; the "
+                       "CPU ignores it")
 
     def check(self, num_envs: int) -> None:
         """Refuse settings that cannot work with `num_envs` envs, before anything is built: a
