@@ -374,6 +374,28 @@ def test_envs_draw_the_same_numbers_in_shards_and_in_one_batch(total, block):
         EnvRandom(30, "cpu", first=1, total=64)
 
 
+def test_one_block_draws_each_tensor_whole_and_resumes_from_a_state_of_many():
+    """A GPU env's generator (one block): a draw is one draw of the whole tensor; a state saved
+    per block (a GPU run of a lab before one generator) resumes from its first block's."""
+    one, blocks = EnvRandom(64, "cpu", blocks=1), EnvRandom(64, "cpu")
+    one.manual_seed(7)
+    blocks.manual_seed(7)
+    assert len(one.generators) == 1 and len(blocks.generators) == 16
+    first = torch.Generator().set_state(blocks.generators[0].get_state())
+    assert torch.equal(one.rand(3), torch.empty(64, 3).uniform_(generator=first))
+    saved = blocks.get_state()
+    one.check_state(saved)
+    one.set_state(saved)
+    assert torch.equal(one.get_state(), saved[:1])
+    assert torch.equal(one.normal_(torch.empty(64, 2)),
+                       torch.empty(64, 2).normal_(generator=blocks.generators[0]))
+    for bad in (saved[:0], saved[0]):  # no row; a row not in a stack
+        with pytest.raises(ValueError, match="not a row for each of 1 blocks"):
+            one.check_state(bad)
+    with pytest.raises(ValueError, match="not a row for each of 16 blocks"):
+        blocks.check_state(one.get_state())
+
+
 def test_only_for_draws_for_the_blocks_in_its_mask_and_says_whether_there_are_any():
     rng = EnvRandom(8, "cpu")  # blocks of one env
     rng.manual_seed(1)

@@ -170,6 +170,19 @@ def test_env_shapes_devices_and_autoreset(warp_env):
 
 @pytest.mark.gpu
 @on_gpu
+def test_a_gpu_env_draws_from_one_generator_and_resumes_a_state_saved_per_block(warp_env):
+    env = warp_env
+    env.reset(seed=0)
+    assert len(env.rng.generators) == 1
+    state = env.get_state()
+    per_block = state["generator"].repeat(16, 1)  # as GPU envs saved it before one generator
+    per_block[1:, 0] += 1
+    env.set_state({**state, "generator": per_block})
+    assert torch.equal(env.rng.get_state(), per_block[:1])
+
+
+@pytest.mark.gpu
+@on_gpu
 def test_env_resets_envs_fed_non_finite_actions(warp_env):
     env = warp_env
     env.reset(seed=0)

@@ -20,7 +20,7 @@ from labcli.envs.compiled import CompiledStep, compiling_notice
 from labcli.envs.config import TaskConfig
 from labcli.envs.cuda_graph import GraphedStep
 from labcli.envs.markers import Marker
-from labcli.envs.random import EnvRandom
+from labcli.envs.random import BLOCKS, EnvRandom
 from labcli.envs.render.scene import SceneRenderer
 from labcli.envs.sim import default_backend, make_sim
 from labcli.envs.spec import TaskSpec
@@ -115,8 +115,10 @@ class LabVecEnv(gym.vector.VectorEnv):
         self._shortcuts = self._reads_on_the_host()
         first, total = shard or (0, self.num_envs)
         self._whole = total  # a list of seeds has one per env of the whole env (`one_seed`)
+        # A GPU env is never sharded: one generator makes each draw one kernel, not one a block.
         self.rng = EnvRandom(self.num_envs, self.device, first, total,
-                             reads_masks=self._shortcuts)
+                             reads_masks=self._shortcuts,
+                             blocks=1 if self.device.type == "cuda" else BLOCKS)
         self.rng.manual_seed(seed)
         self.task.rng = self.rng
         self._np_random, self._np_random_seed = gym.utils.seeding.np_random(seed)

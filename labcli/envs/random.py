@@ -1,5 +1,6 @@
 """The env's random numbers: a generator per fixed block of envs, so that what an env draws does
-not depend on how many envs share its batch (one process, or the cpu backend's env shards)."""
+not depend on how many envs share its batch (one process, or the cpu backend's env shards); on a
+GPU, which has no shards, one generator for all envs."""
 
 from __future__ import annotations
 
@@ -15,9 +16,10 @@ import torch
 BLOCKS = 16
 
 
-def block_bounds(total: int) -> list[int]:
-    """Where the blocks of `total` envs start, and the end: `[0, ..., total]`."""
-    count = min(BLOCKS, total)
+def block_bounds(total: int, blocks: int = BLOCKS) -> list[int]:
+    """Where the `blocks` blocks of `total` envs start (fewer if fewer envs), and the end:
+    `[0, ..., total]`."""
+    count = min(blocks, total)
     return [b * total // count for b in range(count + 1)]
 
 
@@ -27,11 +29,14 @@ class EnvRandom:
     `torch.Generator`, and every env gets the same numbers in one batch or in shards."""
 
     def __init__(self, num_envs: int, device: torch.device | str, first: int = 0,
-                 total: int | None = None, reads_masks: bool | None = None):
+                 total: int | None = None, reads_masks: bool | None = None,
+                 blocks: int = BLOCKS):
         """`reads_masks`: whether `only_for` reads its mask on the host (by default on the
-        CPU); not in a step that is replayed or compiled, which cannot read it."""
+        CPU); not in a step that is replayed or compiled, which cannot read it. `blocks`: 1 on
+        a GPU, where every block draws at every step and each block's draw is a kernel of its
+        own (g1-flat's step: 128 random kernels with 16 blocks, 8 with one)."""
         total = num_envs if total is None else total
-        bounds = block_bounds(total)
+        bounds = block_bounds(total, blocks)
         self.blocks = [b for b in range(len(bounds) - 1)
                        if first <= bounds[b] and bounds[b + 1] <= first + num_envs]
         if not self.blocks or bounds[self.blocks[0]] != first \
@@ -118,15 +123,21 @@ class EnvRandom:
         return torch.stack([g.get_state() for g in self.generators])
 
     def set_state(self, state: torch.Tensor) -> None:
-        for row, generator in zip(state, self.generators, strict=True):
+        """Every generator's state from `get_state`'s rows. One generator (a GPU env's) takes the
+        first of several: a GPU env drew per block of envs in labs before 2026-12-01, and such a
+        run resumes, the first block's generator drawing for all envs."""
+        rows = state[:1] if len(self.generators) == 1 else state
+        for row, generator in zip(rows, self.generators, strict=True):
             generator.set_state(row.clone())
 
     def check_state(self, state: object) -> None:
-        """Raise ValueError or TypeError unless `state` is one `get_state` could have returned."""
+        """Raise ValueError or TypeError unless `state` is one `get_state` could have returned,
+        or, for one generator, a state of several blocks (`set_state`)."""
+        rows = len(self.generators)
         if not isinstance(state, torch.Tensor) or state.dim() != 2 \
-                or len(state) != len(self.generators):
+                or not (len(state) == rows or rows == 1 < len(state)):
             shown = tuple(state.shape) if isinstance(state, torch.Tensor) else type(state).__name__
-            raise ValueError(f"{shown}, not a row for each of {len(self.generators)} blocks")
+            raise ValueError(f"{shown}, not a row for each of {rows} blocks")
         scratch = torch.Generator(self.generators[0].device)
         for row in state:
             scratch.set_state(row.clone())
