@@ -4,9 +4,11 @@ torch's process-wide settings put back when it ends."""
 import pytest
 import torch
 import yaml
-from conftest import needs_warp
+from conftest import needs_menagerie, needs_warp
 from rich.console import Console
 
+from labcli.envs.mdp.math import QUAT_OUTER_TO_ROTATION
+from labcli.gym import make_env
 from labcli.runs import precision
 from labcli.runs.training import train
 
@@ -83,3 +85,25 @@ def test_on_a_gpu_a_tf32_run_s_products_lose_tf32_s_digits_and_training_goes_on(
     assert len(errors) == 3 and min(errors) > 5e-5
     assert _matmul_error() < 1e-5
     assert outcome.summary["iterations"] == 3
+
+
+@pytest.mark.gpu
+@needs_warp()
+@needs_menagerie("unitree_go1")
+def test_on_a_gpu_the_env_s_rotations_keep_float32_s_digits_in_a_tf32_run():
+    """The env's values do not follow the learner's precision: its robot's rotation, made in
+    eager steps and in the step's CUDA graph under TF32, is float32's (TF32: ~1e-3 off)."""
+    if torch.cuda.get_device_capability()[0] < 8:
+        pytest.skip("TF32 needs an Ampere or later GPU")
+    env = make_env("go1-flat", num_envs=64, backend="warp", seed=0)
+    env.reset(seed=0)
+    gen = torch.Generator("cuda").manual_seed(0)
+    to_r = torch.tensor(QUAT_OUTER_TO_ROTATION, dtype=torch.float64, device="cuda")
+    with precision.tf32(True):
+        for _ in range(6):  # three eager steps, the capture, replays
+            env.step(torch.rand(64, 12, device="cuda", generator=gen) * 2 - 1)
+            robot = env.task.robot
+            q = robot.root_quat.double()
+            exact = ((q[:, :, None] * q[:, None, :]).view(64, 16) @ to_r).view(64, 3, 3)
+            assert (robot.rotation.double() - exact).abs().max() < 1e-6
+    env.close()

@@ -236,14 +236,15 @@ def flat_orientation_l2(task: RobotTask, cfg: c.FlatOrientationL2) -> torch.Tens
 
 
 def _terrain_normal_b(task: RobotTask, span: float) -> torch.Tensor:
-    """The terrain's normal under the root, in the root's frame `[n, 3]` (Rᵀn as nᵀR); a term
-    that reads it needs env.terrain."""
+    """The terrain's normal under the root, in the root's frame `[n, 3]` (Rᵀn, as summed
+    products: a matrix product may run in TF32 on a GPU); a term that reads it needs
+    env.terrain."""
     if task.terrain is None:
         raise LabError("a reward measures uprightness against the terrain, and the task has "
                        "none", "give env.terrain, or set the term's reference to gravity")
     r = task.robot
-    return task.robot.per_state(("terrain_normal_b", span), lambda: torch.matmul(
-        task.terrain.normal(r.root_xy, span)[:, None, :], r.rotation)[:, 0])
+    return task.robot.per_state(("terrain_normal_b", span), lambda: (
+        task.terrain.normal(r.root_xy, span)[:, :, None] * r.rotation).sum(dim=1))
 
 
 def lin_vel_z_l2(task: RobotTask, cfg: c.LinVelZL2) -> torch.Tensor:

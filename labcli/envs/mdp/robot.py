@@ -77,7 +77,11 @@ class Robot:
         # body): its columns and rows are the axes and gravity, its entries the angles.
         r = self.rotation = torch.empty(n, 3, 3, dtype=dtype, device=dev)
         self._qq = torch.empty(n, 4, 4, dtype=dtype, device=dev)
+        # Products summed, not matrix products: those may run in TF32 on a GPU (`agent.tf32`),
+        # and the env's values stay float32's whatever the learner's precision.
         self._qq_to_r = torch.as_tensor(math.QUAT_OUTER_TO_ROTATION, dtype=dtype, device=dev)
+        self._qq_terms = torch.empty(n, 16, 9, dtype=dtype, device=dev)
+        self._v_terms = torch.empty(n, 3, 3, dtype=dtype, device=dev)
         self.root_lin_vel_b = torch.empty(n, 3, dtype=dtype, device=dev)
         self.projected_gravity_b = torch.empty(n, 3, dtype=dtype, device=dev)
         self.forward_w = r[:, :, 0]  # the root's x axis in the world: a view of R
@@ -89,9 +93,8 @@ class Robot:
         # The views `update` reads and writes, taken once: each costs as much as an op on it.
         q = self.root_quat
         self._q_col, self._q_row = q[:, :, None], q[:, None, :]
-        self._qq_flat, self._r_flat = self._qq.view(n, 16), r.view(n, 9)
-        self._v_row = self.root_lin_vel_w[:, None, :]
-        self._v_b_row = self.root_lin_vel_b[:, None, :]
+        self._qq_col, self._r_flat = self._qq.view(n, 16, 1), r.view(n, 9)
+        self._v_col = self.root_lin_vel_w[:, :, None]
         self._r_row2 = r[:, 2, :]
 
     def _joints(self, sim: Sim, default_pose: str | None) -> None:
@@ -180,9 +183,11 @@ class Robot:
 
     def _update_root(self) -> None:
         torch.mul(self._q_col, self._q_row, out=self._qq)
-        torch.matmul(self._qq_flat, self._qq_to_r, out=self._r_flat)
-        # R^T v as v^T R: one batched product.
-        torch.matmul(self._v_row, self.rotation, out=self._v_b_row)
+        torch.mul(self._qq_col, self._qq_to_r, out=self._qq_terms)
+        torch.sum(self._qq_terms, dim=1, out=self._r_flat)
+        # R^T v: (R^T v)_j = sum_i v_i R_ij.
+        torch.mul(self._v_col, self.rotation, out=self._v_terms)
+        torch.sum(self._v_terms, dim=1, out=self.root_lin_vel_b)
         torch.neg(self._r_row2, out=self.projected_gravity_b)  # R^T (0, 0, -1)
 
     def forget_derived(self) -> None:
