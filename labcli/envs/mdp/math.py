@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import functools
+
 import torch
 
 # R (3x3, row-major) of a unit quaternion q = (w, x, y, z) as a linear map of its outer product
@@ -21,6 +23,39 @@ _R_TERMS = (
 QUAT_OUTER_TO_ROTATION = [[float(terms.get((i // 4, i % 4), 0)) for terms in _R_TERMS]
                           for i in range(16)]
 
+# The Hamilton product a b, (w, x, y, z), as signs of the products a_i b_j.
+_MUL_TERMS = (
+    {(_W, _W): 1, (_X, _X): -1, (_Y, _Y): -1, (_Z, _Z): -1},
+    {(_W, _X): 1, (_X, _W): 1, (_Y, _Z): 1, (_Z, _Y): -1},
+    {(_W, _Y): 1, (_X, _Z): -1, (_Y, _W): 1, (_Z, _X): 1},
+    {(_W, _Z): 1, (_X, _Y): 1, (_Y, _X): -1, (_Z, _W): 1},
+)
+# The quaternion of extrinsic x-y-z angles, as signs of the products of their half angles'
+# cosines (0) and sines (1), (roll, pitch, yaw): w = cr cp cy + sr sp sy, and so on.
+_RPY_TERMS = (
+    {(0, 0, 0): 1, (1, 1, 1): 1},
+    {(1, 0, 0): 1, (0, 1, 1): -1},
+    {(0, 1, 0): 1, (1, 0, 1): 1},
+    {(0, 0, 1): 1, (1, 1, 0): -1},
+)
+_SIGNS = {
+    "mul": [[float(terms.get((i // 4, i % 4), 0)) for terms in _MUL_TERMS] for i in range(16)],
+    "rpy": [[float(terms.get((i // 4, i // 2 % 2, i % 2), 0)) for terms in _RPY_TERMS]
+            for i in range(8)],
+}
+
+
+@functools.cache
+def _signs(name: str, device: torch.device, dtype: torch.dtype) -> torch.Tensor:
+    """A sign table on the device, made once: not copied from the host in a captured step."""
+    return torch.tensor(_SIGNS[name], dtype=dtype, device=device)
+
+
+def _signed_sum(products: torch.Tensor, name: str) -> torch.Tensor:
+    """`[..., k]` products to `[..., 4]` sums by a sign table: a few kernels on a GPU, where
+    one expression per component is dozens, and no matrix product (TF32 under `agent.tf32`)."""
+    return (products[..., None] * _signs(name, products.device, products.dtype)).sum(dim=-2)
+
 
 def wrap_to_pi(angle: torch.Tensor) -> torch.Tensor:
     return torch.atan2(torch.sin(angle), torch.cos(angle))
@@ -28,21 +63,15 @@ def wrap_to_pi(angle: torch.Tensor) -> torch.Tensor:
 
 def quat_from_rpy(roll: torch.Tensor, pitch: torch.Tensor, yaw: torch.Tensor) -> torch.Tensor:
     """Unit quaternions `[n, 4]` of extrinsic x-y-z angles (inverse of `roll_pitch_yaw`)."""
-    cr, sr = torch.cos(roll * 0.5), torch.sin(roll * 0.5)
-    cp, sp = torch.cos(pitch * 0.5), torch.sin(pitch * 0.5)
-    cy, sy = torch.cos(yaw * 0.5), torch.sin(yaw * 0.5)
-    return torch.stack((cr * cp * cy + sr * sp * sy, sr * cp * cy - cr * sp * sy,
-                        cr * sp * cy + sr * cp * sy, cr * cp * sy - sr * sp * cy), dim=1)
+    half = torch.stack((roll, pitch, yaw), dim=-1) * 0.5
+    r, p, y = torch.stack((half.cos(), half.sin()), dim=-1).unbind(-2)  # [n, 2] each
+    return _signed_sum((r[:, :, None, None] * p[:, None, :, None] * y[:, None, None, :])
+                       .flatten(1), "rpy")
 
 
 def quat_mul(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     """The Hamilton products `a b`, `[n, 4]`."""
-    aw, ax, ay, az = a.unbind(1)
-    bw, bx, by, bz = b.unbind(1)
-    return torch.stack((aw * bw - ax * bx - ay * by - az * bz,
-                        aw * bx + ax * bw + ay * bz - az * by,
-                        aw * by - ax * bz + ay * bw + az * bx,
-                        aw * bz + ax * by - ay * bx + az * bw), dim=1)
+    return _signed_sum((a[:, :, None] * b[:, None, :]).flatten(1), "mul")
 
 
 def quat_apply_inverse(quat: torch.Tensor, vec: torch.Tensor) -> torch.Tensor:
