@@ -40,3 +40,13 @@ def test_quat_from_rpy_is_mujoco_s_extrinsic_xyz_the_product_of_three_turns():
     torch.testing.assert_close(got, math.quat_mul(yaw, math.quat_mul(pitch, roll)))
     single = math.quat_from_rpy(*angles[:1].float().unbind(1))
     assert single.dtype == torch.float32 and single.shape == (1, 4)
+
+
+def test_products_first_made_in_inference_mode_still_serve_autograd():
+    math._signs.cache_clear()
+    a, b = _unit_quats(4, 3), _unit_quats(4, 4)
+    with torch.inference_mode():
+        math.quat_mul(a, b)
+    a.requires_grad_(True)
+    math.quat_mul(a, b).sum().backward()
+    assert a.grad is not None and a.grad.shape == (4, 4)

@@ -47,8 +47,10 @@ _SIGNS = {
 
 @functools.cache
 def _signs(name: str, device: torch.device, dtype: torch.dtype) -> torch.Tensor:
-    """A sign table on the device, made once: not copied from the host in a captured step."""
-    return torch.tensor(_SIGNS[name], dtype=dtype, device=device)
+    """A sign table on the device, made once: not copied from the host in a captured step.
+    Not an inference tensor, though first made in a rollout: autograd may read it later."""
+    with torch.inference_mode(False):
+        return torch.tensor(_SIGNS[name], dtype=dtype, device=device)
 
 
 def _signed_sum(products: torch.Tensor, name: str) -> torch.Tensor:
