@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import functools
+import itertools
 
 import torch
 
@@ -20,8 +21,16 @@ _R_TERMS = (
     {(_Y, _Z): 1, (_Z, _Y): 1, (_W, _X): 1, (_X, _W): 1},    # R21 = 2 (yz + wx)
     {(_W, _W): 1, (_X, _X): -1, (_Y, _Y): -1, (_Z, _Z): 1},  # R22
 )
-QUAT_OUTER_TO_ROTATION = [[float(terms.get((i // 4, i % 4), 0)) for terms in _R_TERMS]
-                          for i in range(16)]
+# The products a_i b_j of two quaternions' components, in row-major order.
+_PAIRS = list(itertools.product(range(4), repeat=2))
+
+
+def _sign_table(terms: tuple[dict, ...], products: list[tuple]) -> list[list[float]]:
+    """A row per product, a column per component: the product's sign in it (0: not in it)."""
+    return [[float(component.get(key, 0)) for component in terms] for key in products]
+
+
+QUAT_OUTER_TO_ROTATION = _sign_table(_R_TERMS, _PAIRS)
 
 # The Hamilton product a b, (w, x, y, z), as signs of the products a_i b_j.
 _MUL_TERMS = (
@@ -38,11 +47,8 @@ _RPY_TERMS = (
     {(0, 1, 0): 1, (1, 0, 1): 1},
     {(0, 0, 1): 1, (1, 1, 0): -1},
 )
-_SIGNS = {
-    "mul": [[float(terms.get((i // 4, i % 4), 0)) for terms in _MUL_TERMS] for i in range(16)],
-    "rpy": [[float(terms.get((i // 4, i // 2 % 2, i % 2), 0)) for terms in _RPY_TERMS]
-            for i in range(8)],
-}
+_SIGNS = {"mul": _sign_table(_MUL_TERMS, _PAIRS),
+          "rpy": _sign_table(_RPY_TERMS, list(itertools.product(range(2), repeat=3)))}
 
 
 @functools.cache
