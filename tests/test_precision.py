@@ -9,7 +9,8 @@ from rich.console import Console
 
 from labcli.envs.mdp.math import QUAT_OUTER_TO_ROTATION
 from labcli.gym import make_env
-from labcli.runs import precision
+from labcli.plugins import registry
+from labcli.runs import config, precision
 from labcli.runs.training import train
 
 
@@ -36,7 +37,7 @@ def test_tf32_holds_within_the_block_and_torch_s_settings_come_back_after_an_err
     assert _settings() == before
 
 
-def test_a_run_trains_in_tf32_by_default_and_a_resume_may_change_that(tmp_path):
+def test_a_run_trains_in_full_float32_by_default_and_a_resume_may_change_that(tmp_path):
     seen: list[bool] = []
 
     def tell(iteration, steps, figures):
@@ -46,15 +47,26 @@ def test_a_run_trains_in_tf32_by_default_and_a_resume_may_change_that(tmp_path):
     before = _settings()
     first = train("cartpole", "rsl_rl", num_envs=8, max_iterations=2, logs_dir=tmp_path,
                   on_iteration=tell, console=Console(quiet=True))
-    assert seen == [True, True] and _settings() == before
+    assert seen == [False, False] and _settings() == before
     params = first.run.dir / "params" / "agent.yaml"
-    assert yaml.safe_load(params.read_text())["tf32"] is True
+    assert yaml.safe_load(params.read_text())["tf32"] is False
     seen.clear()
     train("cartpole", "rsl_rl", max_iterations=3, logs_dir=tmp_path,
-          checkpoint=str(first.run.dir), overrides=["agent.tf32=false"], on_iteration=tell,
+          checkpoint=str(first.run.dir), overrides=["agent.tf32=true"], on_iteration=tell,
           console=Console(quiet=True))
-    assert seen == [False] and _settings() == before
-    assert yaml.safe_load(params.read_text())["tf32"] is False
+    assert seen == [True] and _settings() == before
+    assert yaml.safe_load(params.read_text())["tf32"] is True
+
+
+@pytest.mark.parametrize("framework", ["rsl_rl", "skrl", "sb3", "rl_games"])
+def test_only_g1_flat_s_gpu_defaults_train_in_tf32(framework):
+    """Measured there (docs/benchmarks.md); panda-lift learnt less in TF32 and stays float32."""
+    fw = registry.get_framework(framework)
+    for task, gpu_tf32 in (("g1-flat", True), ("g1-rough", False), ("panda-lift", False),
+                           ("go1-flat", False)):
+        spec = registry.get_task(task)
+        assert config.resolve(spec, fw, gpu_scale=True)[1].tf32 is gpu_tf32, task
+        assert config.resolve(spec, fw)[1].tf32 is False, task
 
 
 def _matmul_error() -> float:
