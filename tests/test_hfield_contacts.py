@@ -51,3 +51,13 @@ def test_on_a_flat_height_field_the_engines_agree():
     (row,) = contacts.compare(model, points, 0.005)
     assert row == {"type": "flat", "places": 16, "apart": 0, "median": 0.0, "largest": 0.0,
                    "turned": 0}
+
+
+def test_on_slopes_of_meshes_the_engines_agree():
+    pytest.importorskip("mujoco_warp")
+    meshes = [f"env.terrain.types.{name}.meshes=true" for name in ("slope", "slope_down")]
+    others = [f"env.terrain.types.{name}=null" for name in ("boxes", "rough")]
+    model, cfg, patches = contacts.terrain_with_sphere("go1-rough", SMALL + meshes + others, 0.01)
+    points = contacts.places(cfg, patches, 32, np.random.default_rng(0))
+    rows = contacts.compare(model, points, 0.005)
+    assert [(row["type"], row["apart"]) for row in rows] == [("slope", 0), ("slope_down", 0)]

@@ -163,6 +163,32 @@ def test_the_height_map_is_what_the_rays_see():
     assert close.mean() > 0.9, np.abs(rays - heights[iy, ix]).max()
 
 
+@pytest.mark.parametrize("inverted", [False, True], ids=["up", "down"])
+def test_a_slope_of_meshes_is_the_height_field_s_surface_as_the_rays_see_it(inverted):
+    """Up to the height field's quantization and the map's sampling: the same surface, the
+    same start points; and the map is what MuJoCo's rays see of the meshes."""
+    slope = t.PyramidSlope(platform=1.0, slope=(0.1, 1.0), inverted=inverted)
+    field = _small(types={"slope": slope}, cols=1)
+    meshes = _small(types={"slope": slope.model_copy(update={"meshes": True})}, cols=1)
+    (field_model, field_terrain), (mesh_model, mesh_terrain) = _build(field), _build(meshes)
+    assert mujoco.mjtGeom.mjGEOM_MESH in mesh_model.geom_type
+    assert mujoco.mjtGeom.mjGEOM_HFIELD not in mesh_model.geom_type[tm.geom_ids(mesh_model)]
+    resolution = 0.05
+    field_map, extent = tm.height_map(field_model, resolution)
+    mesh_map, mesh_extent = tm.height_map(mesh_model, resolution)
+    np.testing.assert_array_equal(mesh_extent, extent)
+    assert not np.isnan(mesh_map).any()
+    # A 45° slope sampled half a sample's width off the field's points, quantized.
+    assert np.abs(field_map - mesh_map).max() <= resolution / 2 + field.vertical_scale
+    np.testing.assert_allclose(mesh_terrain.origins, field_terrain.origins,
+                               atol=field.vertical_scale)
+    rng = np.random.default_rng(0)
+    iy, ix = rng.integers(0, mesh_map.shape[0], 200), rng.integers(0, mesh_map.shape[1], 200)
+    points = np.stack([extent[0] + (ix + 0.5) * resolution, extent[2] + (iy + 0.5) * resolution],
+                      axis=1)
+    np.testing.assert_allclose(_ray_heights(mesh_model, points), mesh_map[iy, ix], atol=1e-5)
+
+
 def test_a_go1_stands_on_the_hardest_patch_of_each_type():
     cfg = _small()
     model, terrain = _build(cfg)

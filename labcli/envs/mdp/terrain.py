@@ -47,6 +47,9 @@ class PyramidSlope(_SubTerrain):
     type: Literal["pyramid_slope"] = "pyramid_slope"
     slope: Range = Field((0.0, 0.4), description="rise over run at difficulty 0 and 1")
     inverted: bool = False
+    meshes: bool = Field(False, description="the slopes as convex meshes, not a height field: "
+                         "MuJoCo Warp meets those as MuJoCo does, where it meets a height "
+                         "field's steep cells up to 10 cm too deep (bench/hfield_contacts.py)")
 
 
 class Wave(_SubTerrain):

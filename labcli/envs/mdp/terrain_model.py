@@ -1,8 +1,8 @@
-"""A `TerrainConfig` written into a model's MjSpec: each patch a height field or a stack of
-boxes, geoms of the world body named `terrain/<n>`, in place of the model's ground planes
-(whose contact settings the terrain's geoms take over), and a flat border around the grid. The
-grid is centred on the world's origin, rows along x. Built from the config's seed alone: the
-same config gives the same geometry, which a resumed or played run rebuilds.
+"""A `TerrainConfig` written into a model's MjSpec: each patch a height field, a stack of
+boxes or convex meshes, geoms of the world body named `terrain/<n>`, in place of the model's
+ground planes (whose contact settings the terrain's geoms take over), and a flat border around
+the grid. The grid is centred on the world's origin, rows along x. Built from the config's
+seed alone: the same config gives the same geometry, which a resumed or played run rebuilds.
 """
 
 from __future__ import annotations
@@ -138,6 +138,8 @@ def _patch(spec: mujoco.MjSpec, body: mujoco.MjsBody, cfg: t.TerrainConfig, sub,
     if isinstance(sub, t.Flat):
         _box(body, centre, cfg.size / 2, cfg.size / 2, 0.0, -BASE, rgba)
         return 0.0
+    if isinstance(sub, t.PyramidSlope) and sub.meshes:
+        return _pyramid(spec, body, cfg, sub, level, centre, rgba, name)
     heights = _heights(cfg, sub, level, rng)
     low, high = float(heights.min()), float(heights.max())
     span = max(high - low, cfg.vertical_scale)
@@ -232,6 +234,46 @@ def _stairs(body: mujoco.MjsBody, cfg: t.TerrainConfig, sub: t.PyramidStairs, le
     return -count * rise
 
 
+def _pyramid(spec: mujoco.MjSpec, body: mujoco.MjsBody, cfg: t.TerrainConfig,
+             sub: t.PyramidSlope, level: float, centre: np.ndarray, rgba, name: str) -> float:
+    """The slope's surface (`_heights`' without its quantization) of convex meshes. Up: a
+    frustum from the flat edge to the platform on flat ground. Down: four wedges, each falling
+    from the flat edge to the sunk platform's side, on a floor at the platform's height, in a
+    ring at the edge's."""
+    half = cfg.size / 2
+    inner = half - FLAT_EDGE
+    platform = sub.platform / 2
+    rise = _lerp(sub.slope, level) * (inner - platform)
+    if rise <= 0:
+        _box(body, centre, half, half, 0.0, -BASE, rgba)
+        return 0.0
+    square = np.array([(-1, -1), (1, -1), (1, 1), (-1, 1)], dtype=float)
+    if not sub.inverted:
+        _box(body, centre, half, half, 0.0, -BASE, rgba)
+        _mesh(spec, body, name, centre, [(*inner * square[k], 0.0) for k in range(4)]
+              + [(*platform * square[k], rise) for k in range(4)], rgba)
+        return rise
+    _box(body, centre, half, half, -rise, -rise - BASE, rgba)
+    _ring(body, centre, half, inner, 0.0, -rise, rgba)
+    # Each wedge spans its side's whole width, past the diagonals where its neighbours' rise
+    # above it: the pit's surface is the highest of the four, with no seam between them.
+    for k in range(4):
+        ends = (k, (k + 1) % 4)
+        outward = (square[ends[0]] + square[ends[1]]) / 2
+        _mesh(spec, body, f"{name}_{k}", centre,
+              [(*(inner * square[i] - (inner - platform) * outward), -rise) for i in ends]
+              + [(*inner * square[i], z) for i in ends for z in (0.0, -rise)], rgba)
+    return -rise
+
+
+def _mesh(spec: mujoco.MjSpec, body: mujoco.MjsBody, name: str, centre, vertices,
+          rgba) -> None:
+    """A convex mesh (the hull of `vertices`, relative to the patch's centre at height 0)."""
+    spec.add_mesh(name=name, uservert=np.asarray(vertices, dtype=float).ravel().tolist())
+    body.add_geom(type=mujoco.mjtGeom.mjGEOM_MESH, meshname=name,
+                  pos=[centre[0], centre[1], 0.0], rgba=rgba)
+
+
 def _box(body: mujoco.MjsBody, centre, half_x: float, half_y: float, top: float,
          bottom: float, rgba) -> None:
     body.add_geom(type=mujoco.mjtGeom.mjGEOM_BOX, size=[half_x, half_y, (top - bottom) / 2],
@@ -271,8 +313,8 @@ def height_map(model: mujoco.MjModel, resolution: float) -> tuple[np.ndarray, np
     geoms = geom_ids(model)
     boxes = [g for g in geoms if model.geom_type[g] == mujoco.mjtGeom.mjGEOM_BOX]
     fields = [g for g in geoms if model.geom_type[g] == mujoco.mjtGeom.mjGEOM_HFIELD]
-    reach = np.array([[*(model.geom_pos[g, :2] - _half(model, g)),
-                       *(model.geom_pos[g, :2] + _half(model, g))] for g in geoms])
+    meshes = [g for g in geoms if model.geom_type[g] == mujoco.mjtGeom.mjGEOM_MESH]
+    reach = np.array([np.concatenate(_footprint(model, g)) for g in geoms])
     x0, y0 = reach[:, :2].min(axis=0)
     x1, y1 = reach[:, 2:].max(axis=0)
     xs = np.arange(x0, x1, resolution) + resolution / 2
@@ -295,7 +337,41 @@ def height_map(model: mujoco.MjModel, resolution: float) -> tuple[np.ndarray, np
         r = np.clip(np.round((ys[lo_y:hi_y] - cy + half_y) / (2 * half_y) * (rows - 1)), 0,
                     rows - 1).astype(int)
         heights[lo_y:hi_y, lo_x:hi_x] = cz + data[np.ix_(r, c)] * top
+    for g in meshes:  # over the boxes they stand on
+        (lo_x, hi_x), (lo_y, hi_y) = _cells(model, g, xs, ys)
+        x, y = np.meshgrid(xs[lo_x:hi_x], ys[lo_y:hi_y])
+        region = heights[lo_y:hi_y, lo_x:hi_x]
+        heights[lo_y:hi_y, lo_x:hi_x] = np.fmax(region, _hull_top(model, g, x, y))
     return heights, np.array([x0, x1, y0, y1])
+
+
+def _mesh_vertices(model: mujoco.MjModel, g: int) -> np.ndarray:
+    """Mesh geom `g`'s vertices in the world (a terrain geom's pose is its own: world body)."""
+    mesh = model.geom_dataid[g]
+    start, count = model.mesh_vertadr[mesh], model.mesh_vertnum[mesh]
+    rotation = np.zeros(9)
+    mujoco.mju_quat2Mat(rotation, model.geom_quat[g])
+    return model.mesh_vert[start:start + count] @ rotation.reshape(3, 3).T + model.geom_pos[g]
+
+
+def _hull_top(model: mujoco.MjModel, g: int, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """The top of convex mesh geom `g` over points (x, y), NaN where it is not over them: the
+    lowest of its upward faces' planes, where the point is inside its upright faces and that
+    top is not below the highest of its downward faces'."""
+    mesh = model.geom_dataid[g]
+    start, count = model.mesh_faceadr[mesh], model.mesh_facenum[mesh]
+    vertices = _mesh_vertices(model, g)
+    a, b, c = (vertices[model.mesh_face[start:start + count, i]] for i in range(3))
+    normal = np.cross(b - a, c - a)  # outward
+    normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+    n, p = normal[:, None, None], a[:, None, None]
+    across = n[..., 0] * (x - p[..., 0]) + n[..., 1] * (y - p[..., 1])  # [faces, ...]
+    up, down = normal[:, 2] > 1e-6, normal[:, 2] < -1e-6  # float32 vertices: upright ~1e-8
+    plane = np.divide(p[..., 2] * n[..., 2] - across, n[..., 2],
+                      out=np.zeros_like(across), where=(up | down)[:, None, None])
+    top, bottom = plane[up].min(axis=0), plane[down].max(axis=0)
+    inside = (top >= bottom - 1e-6) & (across[~(up | down)] <= 1e-6).all(axis=0)
+    return np.where(inside, top, np.nan)
 
 
 def geom_ids(model: mujoco.MjModel) -> list[int]:
@@ -303,16 +379,21 @@ def geom_ids(model: mujoco.MjModel) -> list[int]:
     return [g for g in range(model.ngeom) if model.geom(g).name.startswith(PREFIX)]
 
 
-def _half(model: mujoco.MjModel, g: int) -> np.ndarray:
+def _footprint(model: mujoco.MjModel, g: int) -> tuple[np.ndarray, np.ndarray]:
+    """The lowest and highest (x, y) of terrain geom `g` (boxes and fields are not turned)."""
+    if model.geom_type[g] == mujoco.mjtGeom.mjGEOM_MESH:
+        vertices = _mesh_vertices(model, g)[:, :2]
+        return vertices.min(axis=0), vertices.max(axis=0)
     if model.geom_type[g] == mujoco.mjtGeom.mjGEOM_HFIELD:
-        return model.hfield_size[model.geom_dataid[g], :2]
-    return model.geom_size[g, :2]
+        half = model.hfield_size[model.geom_dataid[g], :2]
+    else:
+        half = model.geom_size[g, :2]
+    return model.geom_pos[g, :2] - half, model.geom_pos[g, :2] + half
 
 
 def _cells(model: mujoco.MjModel, g: int, xs: np.ndarray, ys: np.ndarray):
     """The sample indices inside geom `g`'s footprint, as (x range, y range)."""
-    lo = model.geom_pos[g, :2] - _half(model, g)
-    hi = model.geom_pos[g, :2] + _half(model, g)
+    lo, hi = _footprint(model, g)
     return ((int(np.searchsorted(xs, lo[0])), int(np.searchsorted(xs, hi[0]))),
             (int(np.searchsorted(ys, lo[1])), int(np.searchsorted(ys, hi[1]))))
 
