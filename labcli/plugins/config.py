@@ -26,7 +26,7 @@ class AgentConfig(BaseModel):
     seed: int = Field(0, ge=0, lt=2**32, description="seeds the env, torch, NumPy and Python")
     # Off unless a task's defaults measured it harmless: panda-lift's three seeds in TF32
     # carried the cube in 46-67% of training's episodes after 1,000 iterations, against 64-83%
-    # in float32, at the same steps/s (docs/benchmarks.md).
+    # in float32, and its learning phase was no shorter (docs/benchmarks.md).
     tf32: bool = Field(False, description="on a GPU, float32 matrix products in TF32 (a 10-bit "
                        "mantissa; Ampere and later), as mjlab trains; false: full float32; the "
                        "CPU ignores it")
