@@ -12,7 +12,9 @@ median and largest excess, and the share of those whose contact normal MuJoCo Wa
 vertical where MuJoCo's leans more than 30 degrees. MuJoCo Warp (4.0.0) turns a contact with
 a height-field prism's side into one along the vertical, as deep as the prism's top above the
 sphere: where the ground steps by more than the sphere's radius between two points of the
-field, a foot against the step is pushed up by the step's height.
+field, a foot against the step is pushed up by the step's height. `--set
+env.terrain.types.slope.meshes=true` (and `slope_down`'s) measures the slopes built of convex
+meshes instead.
 """
 
 from __future__ import annotations
@@ -49,7 +51,8 @@ def terrain_with_sphere(task: str, sets: list[str], radius: float):
 
 
 def places(terrain_cfg, patches, count: int, rng: np.random.Generator) -> dict[str, np.ndarray]:
-    """`count` random (x, y) per height-field type, off the platforms and flat edges."""
+    """`count` random (x, y) per type but the box-built ones, off the platforms and flat
+    edges (the slopes' meshes, where `meshes` asks for them, are measured as the fields are)."""
     out = {}
     for name, sub in terrain_cfg.used.items():
         if sub.type in ("flat", "pyramid_stairs"):  # boxes, not height fields
