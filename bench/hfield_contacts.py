@@ -103,6 +103,8 @@ def compare(model, points: dict[str, np.ndarray], depth: float) -> list[dict]:
     wp.init()
     device = "cuda:0" if torch.cuda.is_available() else "cpu"
     data = mujoco.MjData(model)
+    with wp.ScopedDevice(device):
+        m = mjw.put_model(model)  # once: the same terrain for every type's places
     rows = []
     for name, xy in points.items():
         n = len(xy)
@@ -111,7 +113,6 @@ def compare(model, points: dict[str, np.ndarray], depth: float) -> list[dict]:
         qpos = np.zeros((n, 7), np.float32)
         qpos[:, :2], qpos[:, 2], qpos[:, 3] = xy, z, 1.0
         with wp.ScopedDevice(device):
-            m = mjw.put_model(model)
             d = mjw.make_data(model, nworld=n, nconmax=n * 32, njmax=n * 128)
             d.qpos.assign(wp.array(qpos))
             mjw.kinematics(m, d)
