@@ -170,7 +170,7 @@ def _heights(cfg: t.TerrainConfig, sub, level: float, rng: np.random.Generator) 
         drawn = rng.choice(steps, size=(coarse, coarse))
         heights = _resample(drawn, n)
     elif isinstance(sub, t.PyramidSlope):
-        rise = _lerp(sub.slope, level) * (inner - platform)
+        rise = _slope_rise(cfg, sub, level)
         heights = rise * np.clip((inner - ring) / max(inner - platform, 1e-9), 0.0, 1.0)
         heights = -heights if sub.inverted else heights
     elif isinstance(sub, t.Wave):
@@ -243,7 +243,7 @@ def _pyramid(spec: mujoco.MjSpec, body: mujoco.MjsBody, cfg: t.TerrainConfig,
     half = cfg.size / 2
     inner = half - FLAT_EDGE
     platform = sub.platform / 2
-    rise = _lerp(sub.slope, level) * (inner - platform)
+    rise = _slope_rise(cfg, sub, level)
     if rise <= 0:
         _box(body, centre, half, half, 0.0, -BASE, rgba)
         return 0.0
@@ -300,6 +300,12 @@ def _border(body: mujoco.MjsBody, cfg: t.TerrainConfig, length_x: float,
     for sign in (-1, 1):
         _box(body, (sign * (hx + b / 2), 0.0), b / 2, hy + b, 0.0, -BASE, BORDER_RGBA)
         _box(body, (0.0, sign * (hy + b / 2)), hx, b / 2, 0.0, -BASE, BORDER_RGBA)
+
+
+def _slope_rise(cfg: t.TerrainConfig, sub: t.PyramidSlope, level: float) -> float:
+    """How far a slope climbs from the patch's flat edge to its platform: a height field's and
+    meshes' alike."""
+    return _lerp(sub.slope, level) * (cfg.size / 2 - FLAT_EDGE - sub.platform / 2)
 
 
 def _lerp(bounds: tuple[float, float], level: float) -> float:
