@@ -19,7 +19,8 @@ steps/s, and the final success rate; then, per task, the median over the seeds a
 seeds got there within the goal (a run that never got there counts as never, and a median of
 nevers is never). `--played` judges each run by its checkpoints instead, as `lab play` plays
 them (64 episodes without the exploration noise, on the CPU): the seconds and steps of
-training at which the first one that reached --success was saved. With `--backend warp` a
+training at which the first one that reached --success was saved (for a run that never got
+there, its best checkpoint's rate). With `--backend warp` a
 run's checkpoints are played while the next run trains. Training's own success
 counts episodes played under the noise, which can hide a policy that has learnt.
 """
@@ -106,7 +107,8 @@ def train(task: str, framework: str, backend: str, seed: int, success: float,
 
 
 def judge_played(row: dict, run_dir: Path, success: float, workers: int) -> None:
-    """Add to `row` its run's first checkpoint that plays to `success`, and print it."""
+    """Add to `row` its run's checkpoints played up to the first that plays to `success`, and
+    print it."""
     row["played"] = played_to_success(run_dir, success, workers=workers)
     print(json.dumps(row), flush=True)
 
@@ -115,9 +117,19 @@ def reached(row: dict) -> tuple[float | None, int | None]:
     """The seconds and steps of training to success: played checkpoints' where the row has
     them (`--played`), else the logged success rate's."""
     if "played" in row:
-        played = row["played"] or {}
-        return played.get("seconds"), played.get("steps")
+        first = row["played"]["reached"] or {}
+        return first.get("seconds"), first.get("steps")
     return row.get("success_s"), row.get("success_steps")
+
+
+def never(row: dict) -> str:
+    """The cell of a run that never got there; one judged by its played checkpoints names
+    the best of them."""
+    rates = row.get("played", {}).get("rates")
+    if not rates:
+        return "never"
+    iteration, rate = max(rates, key=lambda item: item[1])
+    return f"never (best {rate:.2f}, iteration {iteration:,})"
 
 
 def median_seconds(rows: list[dict]) -> float | None:
@@ -137,7 +149,7 @@ def report(rows: list[dict], success: float, goals: dict[str, float]) -> None:
             print(f"| {row['task']} | {row['seed']} | exit {row['exit']} |  |  |  |  |")
             continue
         reached_s, reached_steps = reached(row)
-        seconds = f"{reached_s:.0f} s" if reached_s is not None else "never"
+        seconds = f"{reached_s:.0f} s" if reached_s is not None else never(row)
         steps = f"{reached_steps:,}" if reached_steps is not None else "-"
         print(f"| {row['task']} | {row['seed']} | {row['steps_per_s']:,.0f} | {seconds} | "
               f"{steps} | {row['training_s']:.0f} ({row['state']}) | "

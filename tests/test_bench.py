@@ -45,7 +45,8 @@ def test_the_env_and_its_rollout_take_turns_and_each_rate_is_a_median(monkeypatc
 def test_a_run_is_judged_by_its_first_checkpoint_that_plays_to_success(tmp_path):
     """`played_to_success`: the checkpoints in order, each played as `lab play --checkpoint`
     plays it (one at a time or several at once); the first that reaches the threshold, with the
-    training seconds and steps at which it was saved; None if none reaches it."""
+    training seconds and steps at which it was saved, and the rate of each checkpoint played;
+    where none reaches it, every checkpoint's rate."""
     import io
     import json
 
@@ -56,13 +57,18 @@ def test_a_run_is_judged_by_its_first_checkpoint_that_plays_to_success(tmp_path)
     run = training.train("cartpole", "rsl_rl", num_envs=8, max_iterations=6, logs_dir=tmp_path,
                          console=Console(file=io.StringIO()),
                          overrides=["agent.save_interval=2", "agent.num_steps_per_env=8"]).run
-    first = bench.played_to_success(run.dir, 0.0, episodes=8)
-    assert first is not None and first["iteration"] == 2
+    judged = bench.played_to_success(run.dir, 0.0, episodes=8)
+    first = judged["reached"]
+    assert first["iteration"] == 2
     _, played = play.play(checkpoint=run.dir / "model_2.pt", episodes=8, seed=1)
     assert first["success"] == played.success_rate
+    assert judged["rates"] == [[2, played.success_rate]]
     # Saved after its second iteration's 2 x 8 x 8 steps were logged, within the training.
     summary = json.loads((run.dir / "summary.json").read_text())
     assert first["steps"] == 128 and 0 < first["seconds"] < summary["wall_time_s"]
     # Played two at a time, each in its own process: the same answer.
-    assert bench.played_to_success(run.dir, 0.0, episodes=8, workers=2) == first
-    assert bench.played_to_success(run.dir, 1.01, episodes=8, workers=2) is None
+    assert bench.played_to_success(run.dir, 0.0, episodes=8, workers=2) == judged
+    unreached = bench.played_to_success(run.dir, 1.01, episodes=8, workers=2)
+    assert unreached["reached"] is None
+    assert [iteration for iteration, _ in unreached["rates"]] == [2, 4, 6]
+    assert unreached["rates"][0] == judged["rates"][0]

@@ -219,14 +219,16 @@ def _played_success(checkpoint: Path, episodes: int, seed: int) -> float:
 
 
 def played_to_success(run_dir: Path, threshold: float, episodes: int = 64,
-                      seed: int = 1, workers: int = 1) -> dict | None:
-    """The run's first complete checkpoint whose policy, played as `lab play --checkpoint`
-    plays it (on the CPU, without its exploration noise, `episodes` episodes from `seed`), ended
-    at least `threshold` of them successfully: its iteration, success rate, and the seconds of
-    training (its manifest's time since the run's first event) and env steps (the last logged
-    before it) at which it was saved. None if none did. Training's own success rate counts
-    episodes played under the noise, which can hide a policy that has learnt. `workers` > 1
-    plays that many checkpoints at once, each in its own process (a play runs on one core)."""
+                      seed: int = 1, workers: int = 1) -> dict:
+    """The run's complete checkpoints played in order, as `lab play --checkpoint` plays them
+    (on the CPU, without their exploration noise, `episodes` episodes from `seed`), up to the
+    first that ended at least `threshold` of them successfully. `reached`: that one's
+    iteration, success rate, and the seconds of training (its manifest's time since the run's
+    first event) and env steps (the last logged before it) at which it was saved, None if none
+    did; `rates`: [iteration, success rate] of each checkpoint played, so that a run which never
+    got there shows how near it came. Training's own success rate counts episodes played under
+    the noise, which can hide a policy that has learnt. `workers` > 1 plays that many
+    checkpoints at once, each in its own process (a play runs on one core)."""
     import concurrent.futures
     import multiprocessing
 
@@ -245,18 +247,21 @@ def played_to_success(run_dir: Path, threshold: float, episodes: int = 64,
         workers, mp_context=multiprocessing.get_context("spawn")) if workers > 1 else None)
     play_all = pool.map if pool else map
     judge = functools.partial(_played_success, episodes=episodes, seed=seed)
+    rates = []
     try:
         # In order, up to `workers` at once; those not begun when one succeeds are cancelled.
         for checkpoint, rate in zip(found, play_all(judge, [c.path for c in found]), strict=True):
+            rates.append([checkpoint.iteration, rate])
             if rate >= threshold:
                 saved = checkpoints.manifest_path(run_dir, checkpoint.iteration).stat().st_mtime
                 steps = max((e.step for e in logged if e.wall_time <= saved), default=0)
-                return {"iteration": checkpoint.iteration, "success": rate,
-                        "seconds": saved - start, "steps": steps}
+                return {"reached": {"iteration": checkpoint.iteration, "success": rate,
+                                    "seconds": saved - start, "steps": steps},
+                        "rates": rates}
     finally:
         if pool:
             pool.shutdown(cancel_futures=True)
-    return None
+    return {"reached": None, "rates": rates}
 
 
 def bench(task: str, num_envs: Sequence[int], *, backend: str | None = None,
