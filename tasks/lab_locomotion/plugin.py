@@ -16,16 +16,16 @@ NETWORK = [400, 200, 100]
 
 
 def _gpu(defaults: dict, max_iterations: int, steps: int, sb3: dict | None = None,
-         env: dict | None = None) -> dict:
+         env: dict | None = None, agent: dict | None = None) -> dict:
     """`defaults` with their settings for the GPU (warp backend): Isaac Lab's 4,096 envs,
     `max_iterations`, sb3's mini-batches a quarter of its `steps`-step rollout, as theirs, and
-    any other `sb3` agent and `env` settings measured there."""
+    any other `sb3` agent, `env` and every framework's `agent` settings measured there."""
     for name, settings in defaults.items():
-        agent = {"max_iterations": max_iterations}
+        warp_agent = {"max_iterations": max_iterations, **(agent or {})}
         if name == "sb3":
-            agent["batch_size"] = 4096 * steps // 4
-            agent.update(sb3 or {})
-        settings["warp"] = {"env": {"num_envs": 4096, **(env or {})}, "agent": agent}
+            warp_agent["batch_size"] = 4096 * steps // 4
+            warp_agent.update(sb3 or {})
+        settings["warp"] = {"env": {"num_envs": 4096, **(env or {})}, "agent": warp_agent}
     return defaults
 
 
@@ -93,7 +93,7 @@ G1_ITERATIONS = 3500
 
 def _velocity_defaults(num_envs: int, max_iterations: int, gpu_iterations: int | None = None,
                        cpu_env: dict | None = None, gpu_env: dict | None = None,
-                       cpu_rsl_rl: dict | None = None) -> dict:
+                       cpu_rsl_rl: dict | None = None, gpu_agent: dict | None = None) -> dict:
     """Isaac Lab's velocity agents in each framework's keys; `cpu_rsl_rl`: rsl_rl's settings
     measured on the CPU, the GPU keeping the rest's."""
     env = {"env": {"num_envs": num_envs, **(cpu_env or {})}}
@@ -125,7 +125,7 @@ def _velocity_defaults(num_envs: int, max_iterations: int, gpu_iterations: int |
         # (rsl_rl's and skrl's starting rate) at 0.97-0.98, 0.95 first reached after 25-26 M
         # of its 29.5 M steps (docs/benchmarks.md). The CPU's rate stays: not measured there.
     }, max_iterations=gpu_iterations or max_iterations, steps=24, sb3={"learning_rate": 1e-3},
-        env=gpu_env)
+        env=gpu_env, agent=gpu_agent)
     rsl_rl = defaults["rsl_rl"]
     rsl_rl["warp"]["agent"].update({key: rsl_rl["agent"][key] for key in cpu_rsl_rl or {}})
     rsl_rl["agent"].update(cpu_rsl_rl or {})
@@ -158,12 +158,11 @@ G1_FLAT_GPU_AGENT = {"tf32": True}
 
 
 def _g1_defaults(iterations: int = G1_ITERATIONS, gpu_agent: dict | None = None) -> dict:
-    defaults = _velocity_defaults(num_envs=256, max_iterations=iterations)
+    defaults = _velocity_defaults(num_envs=256, max_iterations=iterations, gpu_agent=gpu_agent)
     for name, settings in defaults.items():
         settings["agent"].update({"rsl_rl": {"empirical_normalization": True},
                                   "skrl": {"normalize_obs": True},
                                   "sb3": {"normalize_obs": True}}.get(name, {}))
-        settings["warp"]["agent"].update(gpu_agent or {})
     return _with_network(defaults, G1_NETWORK)
 
 
