@@ -158,8 +158,13 @@ def report(rows: list[dict], success: float, goals: dict[str, float]) -> None:
     print("| --- | ---: | ---: | ---: | :-: |")
     for task in dict.fromkeys(row["task"] for row in rows):
         ran = [r for r in rows if r["task"] == task]
-        median = median_seconds([r for r in ran if "exit" not in r])
         goal = goals.get(task)
+        finished = [r for r in ran if "exit" not in r]
+        if not finished:
+            print(f"| {task} | no run finished | {f'{goal} s' if goal else '-'} | "
+                  f"0 of {len(ran)} | no |")
+            continue
+        median = median_seconds(finished)
         shown = f"{median:.0f} s" if median is not None else "never"
         if goal is None:  # a task without a goal on this backend: its figures alone
             print(f"| {task} | {shown} | - | - | - |")
