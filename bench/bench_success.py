@@ -129,6 +129,8 @@ def never(row: dict) -> str:
     if not rates:
         return "never"
     iteration, rate = max(rates, key=lambda item: item[1])
+    if rate == 0:
+        return f"never (0 at each of {len(rates)} checkpoints)"
     return f"never (best {rate:.2f}, iteration {iteration:,})"
 
 

@@ -34,3 +34,14 @@ def test_a_task_whose_every_run_failed_is_reported_not_raised(bench_success, cap
     assert "| ant | 0 | exit 2 |" in out
     assert "| ant | no run finished | 180.0 s | 0 of 2 | no |" in out
     assert "| humanoid | 60 s | - | - | - |" in out
+
+
+def test_a_run_never_played_to_success_names_its_best_checkpoint(bench_success):
+    def played(rates):
+        return finished(0, None) | {"played": {"reached": None, "rates": rates}}
+
+    assert bench_success.never(played([[50, 0.2], [100, 0.77], [150, 0.5]])) == \
+        "never (best 0.77, iteration 100)"
+    assert bench_success.never(played([[50, 0.0], [100, 0.0]])) == \
+        "never (0 at each of 2 checkpoints)"
+    assert bench_success.never(finished(0, None)) == "never"
