@@ -6,8 +6,9 @@
 A CPU rollout of `--envs` envs under random actions (resets included) is sampled every 5 env
 steps; the `--states` samples with the most constraint rows (contacts, limits) are then stepped
 `--horizon` physics steps from the same state and controls, in MuJoCo (float64) and in MuJoCo Warp
-(float32, on CUDA where torch sees a GPU, else on warp's CPU device, which needs no GPU). Every 20
-steps it prints the largest joint speed in each and how many worlds passed `--limit`, and at the
+(float32, on CUDA where torch sees a GPU, else on warp's CPU device, which needs no GPU). First it
+prints the contacts each engine finds in those states (how many, how deep, how many vertical);
+every 20 steps it prints the largest joint speed in each and how many worlds passed `--limit`, and at the
 end how many passed it in MuJoCo Warp and not in MuJoCo. The states are those MuJoCo's rollout
 reached, which MuJoCo Warp's own may not; per-env randomized fields (friction, masses) are the
 model's own in both.
@@ -55,6 +56,16 @@ def hardest_states(task: str, sets: list[str], envs: int, steps: int, count: int
     return model, cfg, samples[:count]
 
 
+def contact_summary(dist: np.ndarray, normal_z: np.ndarray, states: int) -> str:
+    """Contacts a state, the deepest and the share whose normal is within 30° of vertical: a
+    height field's prism side met as its top (docs/benchmarks.md) shows as deep vertical ones."""
+    if not len(dist):
+        return "no contacts"
+    vertical = float((np.abs(normal_z) >= np.cos(np.radians(30))).mean())
+    return (f"{len(dist) / states:.1f} contacts a state, the deepest {-dist.min() * 1000:.0f} "
+            f"mm, {vertical:.0%} of them within 30° of vertical")
+
+
 def compare(model: mujoco.MjModel, cfg, states, horizon: int, limit: float) -> None:
     import mujoco_warp as mjw
     import warp as wp
@@ -77,6 +88,16 @@ def compare(model: mujoco.MjModel, cfg, states, horizon: int, limit: float) -> N
             getattr(d, name).assign(wp.array(values.astype(np.float32)))
         print(f"{len(states)} states, {states[0][0]}-{states[-1][0]} constraint rows in "
               f"MuJoCo; MuJoCo Warp on {device}")
+        mjw.forward(m, d)  # the contacts of the states as given; the steps recompute them
+        n = int(d.nacon.numpy()[0])
+        for data in datas:
+            mujoco.mj_forward(model, data)
+        in_c = contact_summary(np.concatenate([data.contact.dist for data in datas]),
+                               np.concatenate([data.contact.frame[:, 2] for data in datas]),
+                               len(states))
+        in_warp = contact_summary(d.contact.dist.numpy()[:n], d.contact.frame.numpy()[:n, 0, 2],
+                                  len(states))
+        print(f"contacts at the start: {in_c} in MuJoCo; {in_warp} in MuJoCo Warp")
         for step in range(1, horizon + 1):
             mjw.step(m, d)
             for data in datas:
