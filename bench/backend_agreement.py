@@ -8,8 +8,8 @@ steps; the `--states` samples with the most constraint rows (contacts, limits) a
 `--horizon` physics steps from the same state and controls, in MuJoCo (float64) and in MuJoCo Warp
 (float32, on CUDA where torch sees a GPU, else on warp's CPU device, which needs no GPU). First it
 prints the contacts each engine finds in those states (how many, how deep, how many vertical);
-every 20 steps it prints the largest joint speed in each and how many worlds passed `--limit`, and at the
-end how many passed it in MuJoCo Warp and not in MuJoCo. The states are those MuJoCo's rollout
+every 20 steps the largest joint speed in each and how many worlds passed `--limit`; at the end
+how many passed it in MuJoCo Warp and not in MuJoCo. The states are those MuJoCo's rollout
 reached, which MuJoCo Warp's own may not; per-env randomized fields (friction, masses) are the
 model's own in both.
 """
