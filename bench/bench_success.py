@@ -162,12 +162,9 @@ def report(rows: list[dict], success: float, goals: dict[str, float]) -> None:
         ran = [r for r in rows if r["task"] == task]
         goal = goals.get(task)
         finished = [r for r in ran if "exit" not in r]
-        if not finished:
-            print(f"| {task} | no run finished | {f'{goal} s' if goal else '-'} | "
-                  f"0 of {len(ran)} | no |")
-            continue
-        median = median_seconds(finished)
-        shown = f"{median:.0f} s" if median is not None else "never"
+        median = median_seconds(finished) if finished else None
+        shown = ("no run finished" if not finished
+                 else f"{median:.0f} s" if median is not None else "never")
         if goal is None:  # a task without a goal on this backend: its figures alone
             print(f"| {task} | {shown} | - | - | - |")
             continue
