@@ -320,6 +320,38 @@ def test_the_yam_s_gains_and_action_scales_are_mjlab_s():
         env.close()
 
 
+@pytest.mark.parametrize(("clip", "closed"), [(True, (0.0199, 0.0202)), (False, (0.018, 0.0193))])
+def test_a_gripper_s_unclipped_targets_squeeze_the_cube_up_to_its_effort_limit(clip, closed):
+    """Menagerie's gripper takes targets of 0-41 mm: shut on the 4 cm cube (the pads meet it
+    at 20 mm) its servo squeezes with kp x 20 mm, 2.2 N, at most. Asked for -0.3 m with
+    `clip_targets` false (yam-lift's, as mjlab's servos take it), the servo pushes with up to
+    its effort limit (38 N), and the pads sink into the cube's soft contacts."""
+    env = lift(1, f"env.robot.actuators.gripper.clip_targets={str(clip).lower()}")
+    try:
+        settle(env)
+        heights = [0.12] * 40 + np.linspace(0.12, 0.0, 50).tolist() + [0.0] * 80
+        for action in plan(env, heights, [0.0375] * 100 + [-0.3] * 70):
+            env.step(action)
+        assert bool(env.sim.model.actuator_ctrllimited[6]) is clip
+        assert closed[0] < float(env.sim.qpos[0, 6]) < closed[1]
+    finally:
+        env.close()
+
+
+def test_menagerie_s_gravity_compensation_of_the_yam_can_be_taken_off():
+    """Menagerie's YAM makes its links weightless (gravcomp 1), mjlab's copy does not:
+    `gravity_compensation` false takes it off every body of the robot, left out keeps it."""
+    for setting, weightless in (([], True), (["env.robot.gravity_compensation=false"], False)):
+        env = lift(1, *setting)
+        try:
+            model = env.sim.model
+            robot = [model.body(f"link_{i}").id for i in range(2, 7)]
+            assert (model.body_gravcomp[robot] == (1.0 if weightless else 0.0)).all()
+            assert model.body_gravcomp[model.body("cube").id] == 0.0
+        finally:
+            env.close()
+
+
 def test_each_target_drawn_later_drops_the_cube_anew_and_a_copy_of_the_env_does_the_same():
     """mjlab's LiftingCommand: a target drawn during the episode comes with the cube dropped
     at rest somewhere in its box (x 0.2-0.4 m, y -0.2-0.2 m, 1-4 cm up), by the next step's

@@ -71,6 +71,11 @@ class Actuators(BaseModel):
                                           "N m s/rad; None: the model's")
     frictionloss: float | None = Field(None, ge=0, description="the joint's dry friction, N m; "
                                        "None: the model's")
+    clip_targets: bool = Field(True, description="implicit: the servo's targets held to the "
+                               "control range the model gives its actuator (Menagerie's: "
+                               "mostly the joint's range); False: any target, as mjlab's and "
+                               "Isaac Lab's servos take them, so a gripper closing on an "
+                               "object can squeeze it with up to effort_limit")
     model: ActuatorModel = Field("implicit", description="implicit: MuJoCo's position servo; "
                                  "ideal_pd, dc_motor, mlp: torques lab computes each physics "
                                  "step (see labcli.envs.mdp.motors)")
@@ -171,9 +176,11 @@ class RobotDescription(BaseModel):
                                                 "entry that matches it, those none matches "
                                                 "touching nothing (only a gripper's, say, for "
                                                 "speed); None: the model's own")
-    gravity_compensation: bool = Field(False, description="the robot's bodies weigh nothing "
-                                       "on its joints (MuJoCo's gravcomp), as a Franka's own "
-                                       "controller cancels gravity; what it holds still weighs")
+    gravity_compensation: bool | None = Field(None, description="True: the robot's bodies "
+                                              "weigh nothing on its joints (MuJoCo's gravcomp), "
+                                              "as a Franka's own controller cancels gravity; "
+                                              "what it holds still weighs. False: every body "
+                                              "weighs. None: as the model says")
     home: dict[str, float] | None = Field(None, description="the default pose: joint "
                                           "positions (rad, m) by name or pattern, written as "
                                           "the model's keyframe 'home' (the others at qpos0); "

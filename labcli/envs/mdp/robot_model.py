@@ -56,7 +56,10 @@ def apply(spec: mujoco.MjSpec, robot: RobotDescription) -> None:
             was_motor = actuator.biastype == mujoco.mjtBias.mjBIAS_NONE
             actuator.set_to_position(kp=kp, kv=kd)
             actuator.inheritrange = inherit
-            if was_motor:
+            if not group.clip_targets:
+                actuator.inheritrange = 0.0
+                actuator.ctrllimited = mujoco.mjtLimited.mjLIMITED_FALSE
+            elif was_motor:
                 # A motor's control range is in N m (Menagerie's Go2): a servo's targets are
                 # angles, within the joint's range.
                 actuator.ctrlrange = joint.range
@@ -76,8 +79,8 @@ def apply(spec: mujoco.MjSpec, robot: RobotDescription) -> None:
         body.add_site(name=name, pos=list(site.pos), quat=list(site.quat))
     if robot.collisions is not None:
         _set_collisions(spec, model, robot.collisions)
-    if robot.gravity_compensation:
-        _compensate_gravity(spec, model)
+    if robot.gravity_compensation is not None:
+        _compensate_gravity(spec, model, robot.gravity_compensation)
     if robot.home is not None:
         _write_home(spec, model, robot.home)
 
@@ -90,11 +93,11 @@ def _robot_bodies(model: mujoco.MjModel) -> list[int]:
     return [b for b in range(1, model.nbody) if int(model.body_rootid[b]) in roots]
 
 
-def _compensate_gravity(spec: mujoco.MjSpec, model: mujoco.MjModel) -> None:
-    """Every body of the robot weightless on its joints."""
+def _compensate_gravity(spec: mujoco.MjSpec, model: mujoco.MjModel, weightless: bool) -> None:
+    """Every body of the robot weightless on its joints, or every one weighing."""
     bodies = spec.bodies  # the compiled model's order: the world first, then depth first
     for body in _robot_bodies(model):
-        bodies[body].gravcomp = 1.0
+        bodies[body].gravcomp = 1.0 if weightless else 0.0
 
 
 def _set_collisions(spec: mujoco.MjSpec, model: mujoco.MjModel,
