@@ -55,9 +55,8 @@ def apply(spec: mujoco.MjSpec, robot: RobotDescription) -> None:
             inherit = actuator.inheritrange  # the servo's targets: the joint's range, if so
             was_motor = actuator.biastype == mujoco.mjtBias.mjBIAS_NONE
             actuator.set_to_position(kp=kp, kv=kd)
-            actuator.inheritrange = inherit
+            actuator.inheritrange = inherit if group.clip_targets else 0.0
             if not group.clip_targets:
-                actuator.inheritrange = 0.0
                 actuator.ctrllimited = mujoco.mjtLimited.mjLIMITED_FALSE
             elif was_motor:
                 # A motor's control range is in N m (Menagerie's Go2): a servo's targets are
