@@ -6,11 +6,12 @@ in the same machine start:
   python bench/bench_lift.py LAB_RUN_DIR MJLAB_RUN_DIR [--mjlab-envs 4096] [--json FILE]
 
 Prints each one's median training steps/s (the first two iterations, compilation and warm-up,
-left out) and lab's ratio to mjlab's (the goal: 3×); then, at the steps the shorter run
-reached, each one's success and the cube's distance to its target: lab's success rate of the
-episodes ended then (the cube within 5 cm of the last target at the time-out) and mjlab's
-latched `episode_success` (within 5 cm at any moment since the last target), which are not the
-same measure, and both position errors. A run resumed over several sittings reads as one.
+left out) and lab's ratio to mjlab's (the goal: 3×); then two measures of success, each the
+same on both sides: at the episode's end, the cube within 5 cm of its last target (lab's
+success rate, mjlab's `at_goal`) and at any step since that target was drawn (lab's
+`reached`, mjlab's latched `episode_success`); for each, the steps after which it first
+reached 0.1, 0.5 and 0.7, and its value, with the cube's distance to its target, at the steps
+the shorter run reached. A run resumed over several sittings reads as one.
 """
 
 from __future__ import annotations
@@ -24,9 +25,12 @@ from bench_rough import joined, sittings
 
 from labcli.envs import metrics
 
-LAB_ERROR = "Metrics/lift_height/position_error"
-MJLAB = {"steps_per_s": "Perf/total_fps", "success": "Metrics/lift_height/episode_success",
-         "error": "Metrics/lift_height/position_error"}
+# Each measure's tags: (lab's, mjlab's).
+TAGS = {"steps_per_s": (metrics.STEPS_PER_S, "Perf/total_fps"),
+        "success": (metrics.SUCCESS_RATE, "Metrics/lift_height/at_goal"),
+        "reached": ("Metrics/lift_height/reached", "Metrics/lift_height/episode_success"),
+        "error": ("Metrics/lift_height/position_error", "Metrics/lift_height/position_error")}
+LEVELS = (0.1, 0.5, 0.7)
 STEPS_PER_ENV = 24  # both agents' rollout: mjlab logs by iteration, lab by env step
 
 
@@ -40,30 +44,44 @@ def _at_step(series: list[tuple[float, int, float]], step: int) -> float | None:
     return before[-1] if before else None
 
 
-def _shown(value: float | None) -> str:
-    return "-" if value is None else f"{value:.3f}"
+def _first_step(series: list[tuple[float, int, float]], level: float) -> int | None:
+    # TensorBoard keeps float32: a logged 0.7 reads back as 0.69999999.
+    return next((step for _, step, value in series if value >= level - 1e-6), None)
+
+
+def _shown(value: float | None, form: str = ".3f") -> str:
+    return "-" if value is None else format(value, form)
 
 
 def compare(lab_run: Path, mjlab_run: Path, mjlab_envs: int) -> dict:
     ours, theirs = sittings(lab_run), sittings(mjlab_run)
     per_iteration = mjlab_envs * STEPS_PER_ENV
-    mjlab = {key: [(t, step * per_iteration, value) for t, step, value in joined(theirs, tag)]
-             for key, tag in MJLAB.items()}
-    lab = {"steps_per_s": joined(ours, metrics.STEPS_PER_S),
-           "success": joined(ours, metrics.SUCCESS_RATE), "error": joined(ours, LAB_ERROR)}
-    common = min(lab["success"][-1][1], mjlab["success"][-1][1])
-    row = {"lab_run": str(lab_run), "mjlab_run": str(mjlab_run), "common_steps": common,
-           **{f"{who}_{key}": (_median_rate(series[key]) if key == "steps_per_s"
-                               else _at_step(series[key], common))
-              for who, series in (("lab", lab), ("mjlab", mjlab)) for key in MJLAB}}
+    series = {"lab": {key: joined(ours, lab) for key, (lab, _) in TAGS.items()},
+              "mjlab": {key: [(t, step * per_iteration, value)
+                              for t, step, value in joined(theirs, mjlab)]
+                        for key, (_, mjlab) in TAGS.items()}}
+    common = min(s["success"][-1][1] for s in series.values())
+    row = {"lab_run": str(lab_run), "mjlab_run": str(mjlab_run), "common_steps": common}
+    for who, own in series.items():
+        row[f"{who}_steps_per_s"] = _median_rate(own["steps_per_s"])
+        for key in ("success", "reached", "error"):
+            row[f"{who}_{key}"] = _at_step(own[key], common)
+        for key in ("success", "reached"):
+            row[f"{who}_{key}_first"] = {level: _first_step(own[key], level) for level in LEVELS}
     ratio = (row["lab_steps_per_s"] / row["mjlab_steps_per_s"]
              if row["lab_steps_per_s"] and row["mjlab_steps_per_s"] else None)
     row["ratio"] = ratio
     print(f"training steps/s: lab {row['lab_steps_per_s'] or 0:,.0f}, mjlab "
           f"{row['mjlab_steps_per_s'] or 0:,.0f}: lab {ratio or 0:.2f}× mjlab's (goal 3×)")
-    print(f"after {common:,} steps: lab success {_shown(row['lab_success'])}, cube "
-          f"{_shown(row['lab_error'])} m from its target; mjlab episode_success "
-          f"{_shown(row['mjlab_success'])}, cube {_shown(row['mjlab_error'])} m from its target")
+    for key, name in (("success", "within 5 cm at the end"),
+                      ("reached", "within 5 cm at any step since the target was drawn")):
+        print(f"{name}:")
+        for who in series:
+            firsts = ", ".join(f"{level} after {_shown(step, ',')}"
+                               for level, step in row[f"{who}_{key}_first"].items())
+            print(f"  {who:5} {firsts} steps; {_shown(row[f'{who}_{key}'])} after {common:,}")
+    print(f"the cube's distance to its target after {common:,} steps: lab "
+          f"{_shown(row['lab_error'])} m, mjlab {_shown(row['mjlab_error'])} m")
     return row
 
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import importlib.util
+import sys
 from pathlib import Path
 from types import ModuleType
 
@@ -10,7 +11,9 @@ BENCH = Path(__file__).parents[1] / "bench"
 
 
 def load(name: str) -> ModuleType:
-    """bench/<name>.py as a module."""
+    """bench/<name>.py as a module, its siblings importable as when it runs as a script."""
+    if str(BENCH) not in sys.path:
+        sys.path.append(str(BENCH))
     spec = importlib.util.spec_from_file_location(name, BENCH / f"{name}.py")
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)

@@ -143,6 +143,34 @@ def test_the_errors_are_mujoco_s_site_pose_against_the_command():
         env.close()
 
 
+def test_reached_latches_the_closest_approach_to_each_target_until_the_next_is_drawn():
+    env = reach(4, "env.commands.ee_pose.reached_within=0.05")
+    try:
+        for _ in range(60):
+            env.step(torch.zeros(4, 8))
+        made = env.task.command("ee_pose")
+        site = torch.from_numpy(mujoco_site_pose(env, 2)[0]).to(made.command)
+
+        def step_with_target(offset_z: float, expires: bool = False) -> float:
+            made.command[2, :3] = site + torch.tensor([0.0, 0.0, offset_z]).to(site)
+            made.command[:, :3][[0, 1, 3]] = site + 1.0  # a metre away: never reached
+            made.time_left.fill_(0.0 if expires else 1.0)
+            env.task.robot.forget_derived()
+            made.after_step()
+            reached = made.metrics()["reached"]
+            assert reached[[0, 1, 3]].tolist() == [0.0, 0.0, 0.0]
+            return float(reached[2])
+
+        assert step_with_target(0.2) == 0.0
+        assert step_with_target(0.04) == 1.0
+        assert step_with_target(0.3) == 1.0  # latched: it came within 5 cm of this target
+        assert step_with_target(0.3, expires=True) == 1.0  # judged before the next is drawn
+        assert step_with_target(0.3) == 0.0  # a new target, not yet reached
+        assert step_with_target(0.049) == 1.0
+    finally:
+        env.close()
+
+
 FLOATING = """<mujoco model="floating_arm"><worldbody><body name="base" pos="0 0 1">
   <freejoint/><geom size="0.1"/>
   <body name="link"><joint name="shoulder" range="-1 1"/><geom size="0.05" pos="0.2 0 0"/>

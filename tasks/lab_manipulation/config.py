@@ -92,7 +92,7 @@ class LiftCommands(c.Group):
     object_pose: c.UniformPoseCommand | None = c.UniformPoseCommand(
         body=CUBE, base_body="link0", resampling_time_range=(5.0, 5.0), pos_x=(0.4, 0.6),
         pos_y=(-0.25, 0.25), pos_z=(0.25, 0.5), roll=(0.0, 0.0), pitch=(0.0, 0.0),
-        yaw=(0.0, 0.0))
+        yaw=(0.0, 0.0), reached_within=0.05)
 
 
 class LiftObservations(c.Group):
@@ -196,7 +196,7 @@ class YamLiftCommands(c.Group):
     lift_height: c.UniformPoseCommand | None = c.UniformPoseCommand(
         body=YAM_CUBE, base_body=yam.BASE, resampling_time_range=(8.0, 12.0),
         pos_x=(0.3, 0.5), pos_y=(-0.2, 0.2), pos_z=(0.19, 0.39), roll=(0.0, 0.0),
-        pitch=(0.0, 0.0), yaw=(0.0, 0.0), place=YAM_CUBE_DROP)
+        pitch=(0.0, 0.0), yaw=(0.0, 0.0), place=YAM_CUBE_DROP, reached_within=0.05)
 
 
 class YamLiftObservations(c.Group):

@@ -153,7 +153,8 @@ class UniformPoseCommand:
     qpos0 (`objects.FixedFrame`). The errors are computed once per state (rewards read them);
     `errors` keeps each step's against the command the policy pursued in it, taken before a
     command expiring at that step is drawn again (as at a 12 s time-out with 4 s commands):
-    success and the logged metrics judge those."""
+    success and the logged metrics judge those. With `reached_within`, `closest` is likewise
+    the step's closest distance to the command it pursued since that was drawn."""
 
     names = ["pos_x", "pos_y", "pos_z", "quat_w", "quat_x", "quat_y", "quat_z"]
     units = ["m, base frame"] * 3 + ["unit quaternion, base frame"] * 4
@@ -187,6 +188,11 @@ class UniformPoseCommand:
             self._turns = turns(ranges)
             self._object = objects.free_body(task, cfg.body)
             self._home = task.robot.default_qpos[:, self._object.qpos]
+        if cfg.reached_within is not None:
+            self.closest = like.new_full((n,), torch.inf)
+            # Since the current target was drawn: `closest` keeps the step's before a draw.
+            self.since_drawn = self.closest.clone()
+            self.carried = (*self.carried, "closest", "since_drawn")
 
     def __call__(self) -> torch.Tensor:
         return self.command
@@ -230,6 +236,9 @@ class UniformPoseCommand:
 
     def after_step(self) -> None:
         torch.stack((self.position_error(), self.orientation_error()), dim=1, out=self.errors)
+        if self.cfg.reached_within is not None:
+            torch.minimum(self.since_drawn, self.errors[:, 0], out=self.since_drawn)
+            self.closest.copy_(self.since_drawn)
         self.time_left.sub_(self.task.step_dt)
         expired = self.time_left <= 0.0
         with self.task.rng.only_for(expired) as some:
@@ -253,9 +262,14 @@ class UniformPoseCommand:
                 self.to_drop.zero_()
 
     def metrics(self) -> dict[str, torch.Tensor]:
-        return {"position_error": self.errors[:, 0], "orientation_error": self.errors[:, 1]}
+        figures = {"position_error": self.errors[:, 0], "orientation_error": self.errors[:, 1]}
+        if self.cfg.reached_within is not None:
+            figures["reached"] = (self.closest < self.cfg.reached_within).to(self.closest)
+        return figures
 
     def _resample(self, mask: torch.Tensor) -> None:
+        if self.cfg.reached_within is not None:
+            self.since_drawn.masked_fill_(mask, torch.inf)
         drawn = self.draw()
         quat = math.quat_from_rpy(drawn[:, 3], drawn[:, 4], drawn[:, 5])
         target = torch.cat((drawn[:, :3], quat), dim=1)

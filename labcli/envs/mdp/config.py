@@ -91,8 +91,10 @@ class UniformPoseCommand(RangeChecked):
     (rad, extrinsic x-y-z) drawn in theirs, per env at reset and every
     `resampling_time_range` s. The command is the position and the unit quaternion (w, x, y,
     z). Logs each episode's final position and orientation errors of the site or body as
-    Metrics/<name>/position_error (m) and .../orientation_error (rad); videos show the target
-    as a marker."""
+    Metrics/<name>/position_error (m) and .../orientation_error (rad), and with
+    `reached_within` the share of episodes whose site or body came that close to its last
+    target at any step since it was drawn as .../reached (mjlab's latched `episode_success`);
+    videos show the target as a marker."""
 
     impl: ClassVar[str] = "labcli.envs.mdp.commands:UniformPoseCommand"
     site: str | None = Field(None, min_length=1, description="the site whose pose is "
@@ -113,6 +115,9 @@ class UniformPoseCommand(RangeChecked):
                                            "offsets drawn from these ranges (keys as "
                                            "ResetRootUniform's pose_range: mjlab's "
                                            "LiftingCommand), in the next step's physics")
+    reached_within: float | None = Field(None, gt=0, description="m: log Metrics/<name>/"
+                                         "reached, whether the position came this close to "
+                                         "the last target since it was drawn")
 
     @model_validator(mode="after")
     def _one_frame(self) -> UniformPoseCommand:
