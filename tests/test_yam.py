@@ -11,6 +11,7 @@ import pytest
 import torch
 from conftest import needs_menagerie, needs_warp
 from lab_manipulation.config import YamLiftRewards
+from lab_manipulation.scripted import CUBE_POS, grasp, holding, pinch_down_at, plan, settle
 from lab_manipulation.yam import FINGERS
 
 from labcli.envs.mdp import config as c
@@ -20,9 +21,6 @@ from labcli.errors import LabError
 from labcli.gym import make_env
 
 pytestmark = needs_menagerie("i2rt_yam")
-ARM = [f"joint{i}" for i in range(1, 7)]
-# The cube's free joint after the arm's 6 joints and 2 fingers: position, then orientation.
-CUBE_POS, CUBE_QUAT = slice(8, 11), slice(11, 15)
 REST = 0.01  # the 2 cm half-size cube's centre resting on Menagerie's floor, 1 cm below the base
 
 
@@ -31,76 +29,6 @@ def lift(n: int, *overrides: str, **config):
                    overrides=["env.observation_noise=false", *overrides], **config)
     env.reset()
     return env
-
-
-def pinch_down_at(model: mujoco.MjModel, qpos: np.ndarray, pos: np.ndarray,
-                  yaw: float) -> np.ndarray:
-    """The arm's joint angles that put the `pinch` site at `pos`, pointing down, its fingers
-    closing across the cube's faces (the site's y axis along the cube's yaw): damped least
-    squares on MuJoCo's site Jacobian, within the joints' ranges."""
-    data, site = mujoco.MjData(model), model.site("pinch").id
-    data.qpos[:] = qpos
-    arm = [model.joint(j).qposadr[0] for j in ARM]
-    low, high = model.jnt_range[:6].T
-    for _ in range(400):
-        mujoco.mj_kinematics(model, data)
-        mujoco.mj_comPos(model, data)
-        rot = data.site_xmat[site].reshape(3, 3)
-        across = np.array([math.cos(yaw), math.sin(yaw), 0.0])
-        across = across if across @ rot[:, 1] >= 0 else -across
-        down = np.array([0.0, 0.0, -1.0])
-        goal = np.column_stack([np.cross(across, down), across, down])
-        error, turn = np.zeros(6), np.zeros(4)
-        error[:3] = pos - data.site_xpos[site]
-        mujoco.mju_mat2Quat(turn, (goal @ rot.T).ravel())
-        mujoco.mju_quat2Vel(error[3:], turn, 1.0)
-        if np.abs(error).max() < 1e-7:
-            break
-        jac_pos, jac_rot = np.zeros((3, model.nv)), np.zeros((3, model.nv))
-        mujoco.mj_jacSite(model, data, jac_pos, jac_rot, site)
-        jac = np.vstack([jac_pos, jac_rot])[:, arm]
-        step = jac.T @ np.linalg.solve(jac @ jac.T + 1e-4 * np.eye(6), error)
-        data.qpos[arm] = np.clip(data.qpos[arm] + 0.5 * step, low, high)
-    assert np.abs(error).max() < 1e-5
-    return data.qpos[arm].copy()
-
-
-def settle(env) -> None:
-    """The cubes, dropped from up to 3 cm at reset, come to rest on the floor."""
-    for _ in range(25):
-        env.step(torch.zeros(env.num_envs, 7, device=env.sim.qpos.device))
-
-
-def plan(env, heights: list[float], grips: list[float]) -> list[torch.Tensor]:
-    """The actions that put each env's pinch over its cube where it rests, `heights` (m) over
-    its centre and the fingers at `grips` (m), one of each a step, the pinch's y axis across
-    the cube's faces. Each step's joint targets start from the last ones (small steps of the
-    hand)."""
-    model, task = env.sim.model, env.task
-    scales = np.array([g.scale(2.0, 2.0) for g in task.cfg.robot.actuators.values()])
-    default = task.robot.default_joint_pos[0].double().cpu().numpy()
-    qpos = env.sim.qpos.double().cpu().numpy().copy()  # a copy: planning must not move the arm
-    cubes = qpos[:, CUBE_POS].copy()
-    w, z = qpos[:, CUBE_QUAT][:, 0], qpos[:, CUBE_QUAT][:, 3]
-    yaws = 2.0 * np.arctan2(z, w)
-    arm = [model.joint(j).qposadr[0] for j in ARM]
-    actions = []
-    for height, grip in zip(heights, grips, strict=True):
-        rows = []
-        for i in range(env.num_envs):
-            qpos[i, arm] = pinch_down_at(model, qpos[i], cubes[i] + [0, 0, height], yaws[i])
-            rows.append((np.append(qpos[i, arm], grip) - default[:7]) / scales)
-        actions.append(torch.tensor(np.stack(rows), dtype=torch.float32))
-    return actions
-
-
-def grasp(env) -> list[torch.Tensor]:
-    """A scripted grasp: the pinch 12 cm over the cube with the gripper open, down to it along
-    a straight line, the gripper closed, up 10 cm."""
-    heights = ([0.12] * 40 + np.linspace(0.12, 0.0, 50).tolist() + [0.0] * 80
-               + np.linspace(0.0, 0.1, 100).tolist() + [0.1] * 20)
-    grips = [0.0375] * 100 + [0.0] * 190  # open, then closed from 10 steps at the cube
-    return plan(env, heights, grips)
 
 
 def press(env) -> list[torch.Tensor]:
@@ -172,6 +100,39 @@ class _GraspRewards(YamLiftRewards):
                                                       fingers=FINGERS)
     squeezed: c.ObjectGrasped | None = c.ObjectGrasped(weight=1.0, object="cube",
                                                        fingers=FINGERS, squeeze=0.8)
+
+
+def test_the_scripted_grasp_holds_up_an_arm_whose_weight_is_not_compensated():
+    """Menagerie's YAM is weightless (gravity compensation): the servos' targets are the
+    joints' angles. Without it (mjlab's YAM) the servos sag under the arm's weight unless
+    their targets are raised by its gravity torques over their stiffness, and then the same
+    grasp lifts the cube."""
+    env = lift(2, "env.robot.gravity_compensation=false")
+    try:
+        settle(env)
+        home = env.task.robot.default_joint_pos[0, :6].double().numpy()
+        sagged = env.sim.qpos[0, :6].double().numpy()
+        assert np.abs(sagged - home).max() > 0.1  # rad, the elbow and wrist under their weight
+        qpos = env.sim.qpos[0].double().numpy()
+        offsets = holding(env.sim.model, qpos)
+        assert np.abs(offsets).max() > 0.1
+        data = mujoco.MjData(env.sim.model)
+        data.qpos[:] = qpos
+        mujoco.mj_forward(env.sim.model, data)
+        dofs = [env.sim.model.joint(f"joint{i}").dofadr[0] for i in range(1, 7)]
+        assert offsets * env.sim.model.actuator_gainprm[:6, 0] == pytest.approx(
+            data.qfrc_bias[dofs], rel=1e-9)
+        for action in grasp(env):
+            env.step(action)
+        assert (env.sim.qpos[:, CUBE_POS][:, 2].double() > REST + 0.08).all()
+    finally:
+        env.close()
+    env = lift(1)
+    try:
+        weightless = holding(env.sim.model, env.sim.qpos[0].double().numpy())
+        assert np.abs(weightless).max() < 1e-9
+    finally:
+        env.close()
 
 
 @pytest.mark.parametrize(("script", "squeezed", "share"), [(press, False, (0.95, 1.0)),
