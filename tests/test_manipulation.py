@@ -484,11 +484,27 @@ def test_panda_tasks_train_play_and_export_from_the_command_line(tmp_path, task)
     played = CliRunner().invoke(app, ["play", "--last", "--episodes", "2", "--num-envs", "2"],
                                 env=env)
     assert played.exit_code == 0 and "2 episodes" in played.output, played.output
+    assert "the task's metrics, means over the 2 episodes that ended: " in played.output
     exported = CliRunner().invoke(app, ["export", "onnx", "--last"], env=env)
     assert exported.exit_code == 0, exported.output
     # The plain-MuJoCo check replays floating robots: an arm's export is one line saying so.
     checked = CliRunner().invoke(app, ["sim2sim", "--last", "--episodes", "1"], env=env)
     assert checked.exit_code == 2 and "bolted to the world" in checked.output, checked.output
+
+
+def test_play_reports_the_task_s_metrics_of_the_episodes_that_ended(tmp_path):
+    """The zero agent holds the hand at home, over the cube: the cube stays on the floor, its
+    centre 22-47 cm under every target (the targets' 25-50 cm over the base, the cube's 3 cm),
+    upright as each target asks."""
+    from labcli.runs import play as plays
+
+    _, eps = plays.sanity("panda-lift", "zero", episodes=3, num_envs=3, logs_dir=tmp_path)
+    assert eps.ended == 3
+    assert set(eps.task_metrics) == {"object_pose/position_error",
+                                     "object_pose/orientation_error", "object_pose/reached"}
+    assert eps.task_metrics["object_pose/reached"] == 0.0
+    assert 0.22 <= eps.task_metrics["object_pose/position_error"] <= 0.8
+    assert eps.task_metrics["object_pose/orientation_error"] < 0.01
 
 
 def test_the_summary_keeps_the_last_ended_episodes_figures(tmp_path, monkeypatch):

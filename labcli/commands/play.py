@@ -84,5 +84,8 @@ def _print_episodes(eps: Episodes, title: str, has_success: bool) -> None:
     success = f"success rate {eps.success_rate:.0%}" if has_success else "no success criterion"
     say(f"{len(eps.returns)} episodes: mean return {eps.mean_return:.1f}, {success}; "
         f"ended by {ended}")
+    if eps.task_metrics:
+        figures = ", ".join(f"{name} {value:.3g}" for name, value in eps.task_metrics.items())
+        say(f"the task's metrics, means over the {eps.ended} episodes that ended: {figures}")
     for path in eps.videos:
         say(f"video: {path}")

@@ -13,6 +13,7 @@ import torch
 from rich.console import Console
 
 from labcli import files
+from labcli.envs import metrics
 from labcli.envs.make import make_env
 from labcli.envs.render.video import VideoRecorder
 from labcli.envs.render.viewer import Viewer, check_display
@@ -143,6 +144,11 @@ class Episodes:
     successes: list[bool] = field(default_factory=list)
     causes: list[str] = field(default_factory=list)
     videos: list[Path] = field(default_factory=list)
+    # The task's episode metrics (`Metrics/<term>/<key>` without the prefix), means over every
+    # episode that ended in the rollout: `ended` of them, a few more than the episodes above
+    # where envs end episodes of different lengths.
+    task_metrics: dict[str, float] = field(default_factory=dict)
+    ended: int = 0
 
     @property
     def success_rate(self) -> float:
@@ -159,6 +165,7 @@ def rollout(env: Any, act, episodes: int, seed: int = 0) -> Episodes:
     episodes none favours short ones."""
     out = Episodes()
     obs, _ = env.reset(seed=seed)
+    env.pop_stats()  # from this reset on
     names = env.termination_names
     taken = torch.zeros(env.num_envs, dtype=torch.long)
     per_env = -(-episodes // env.num_envs)  # ceil: the fewest episodes each env must give
@@ -179,6 +186,11 @@ def rollout(env: Any, act, episodes: int, seed: int = 0) -> Episodes:
             out.successes.append(bool(ep["success"][i]))
             hit = causes[i].nonzero().flatten().tolist()
             out.causes.append(names[hit[0]] if hit else TIME_OUT)
+    stats = env.pop_stats()
+    out.ended = int(stats.get(metrics.EPISODES, 0))
+    out.task_metrics = {tag.removeprefix(metrics.TASK_METRIC): value
+                        for tag, value in stats.items()
+                        if tag.startswith(metrics.TASK_METRIC) and tag != metrics.SUCCESS_RATE}
     return out
 
 
