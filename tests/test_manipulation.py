@@ -167,6 +167,15 @@ def test_reached_latches_the_closest_approach_to_each_target_until_the_next_is_d
         assert step_with_target(0.3, expires=True) == 1.0  # judged before the next is drawn
         assert step_with_target(0.3) == 0.0  # a new target, not yet reached
         assert step_with_target(0.049) == 1.0
+        twin = reach(4, "env.commands.ee_pose.reached_within=0.05")  # resumed from env's state
+        try:
+            twin.resume_from(env.get_state())
+            twin.reset()
+            resumed = twin.task.command("ee_pose")
+            assert torch.equal(resumed.since_drawn, made.since_drawn)
+            assert torch.equal(resumed.closest, made.closest)
+        finally:
+            twin.close()
     finally:
         env.close()
 
