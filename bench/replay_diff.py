@@ -30,7 +30,7 @@ JOINTS = 8  # the arm's six and the two fingers', in both models' order
 
 
 def record_lab(sets: list[str]) -> dict[str, np.ndarray]:
-    from lab_manipulation.scripted import CUBE_POS, grasp, settle
+    from lab_manipulation.scripted import CUBE_POS, CUBE_QUAT, SETTLE_STEPS, grasp, settle
 
     from labcli.gym import make_env
 
@@ -39,7 +39,9 @@ def record_lab(sets: list[str]) -> dict[str, np.ndarray]:
     try:
         env.reset()
         settle(env)
-        settled = env.sim.qpos.double().numpy().copy()
+        settled = env.sim.qpos.double().numpy()
+        joints_at_rest = settled[:, :JOINTS].copy()
+        cube_rest = np.concatenate([settled[:, CUBE_POS], settled[:, CUBE_QUAT]], axis=1)
         actions = grasp(env)
         joints, cubes, ended = [], [], []
         for action in actions:
@@ -50,7 +52,8 @@ def record_lab(sets: list[str]) -> dict[str, np.ndarray]:
             ended.append((terminated | truncated).numpy().copy())
     finally:
         env.close()
-    return {"settled": settled, "actions": torch.stack(actions).numpy(),
+    return {"settled_joints": joints_at_rest, "cube_rest": cube_rest,
+            "settle_steps": np.array(SETTLE_STEPS), "actions": torch.stack(actions).numpy(),
             "joints": np.stack(joints), "cubes": np.stack(cubes), "ended": np.stack(ended)}
 
 
@@ -65,11 +68,11 @@ def replay_mjlab(lab: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
     env.reset()
     robot, cube = env.scene["robot"], env.scene["cube"]
     zero = torch.zeros(ENVS, lab["actions"].shape[2])
-    for _ in range(25):  # as long as lab's cubes settled
+    for _ in range(int(lab["settle_steps"])):  # as long as lab's cubes settled
         env.step(zero)
     settled_joints = robot.data.joint_pos.double().numpy().copy()
     base = robot.data.root_link_pos_w.clone()
-    rest = torch.tensor(lab["settled"][:, 8:15], dtype=torch.float32)
+    rest = torch.tensor(lab["cube_rest"], dtype=torch.float32)
     cube.write_root_link_pose_to_sim(torch.cat([rest[:, :3] + base, rest[:, 3:]], dim=1))
     cube.write_root_link_velocity_to_sim(torch.zeros(ENVS, 6))
     env.sim.forward()
@@ -84,14 +87,14 @@ def replay_mjlab(lab: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
 
 
 def compare(lab: dict[str, np.ndarray], mjlab: dict[str, np.ndarray]) -> dict[str, float]:
-    settled = np.abs(mjlab["settled_joints"] - lab["settled"][:, :JOINTS]).max()
+    settled = np.abs(mjlab["settled_joints"] - lab["settled_joints"]).max()
     # Each env's steps before its first episode's end on either side.
     live = np.cumsum(lab["ended"] | mjlab["ended"], axis=0) == 0
     apart = np.abs(mjlab["joints"] - lab["joints"]).max(axis=2)  # [steps, envs]
     per_step = np.where(live, apart, np.nan)
     per_step = per_step[~np.isnan(per_step).all(axis=1)]
     worst = np.nanmax(per_step, axis=1)
-    rest = lab["settled"][:, 10]
+    rest = lab["cube_rest"][:, 2]
     row = {"settled_joints_apart": float(settled),
            "joints_apart_median": float(np.median(worst)),
            "joints_apart_p90": float(np.percentile(worst, 90)),

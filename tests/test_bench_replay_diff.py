@@ -12,8 +12,8 @@ STEPS, ENVS, JOINTS = 4, 2, 8
 
 def test_the_joints_are_compared_until_either_side_s_episode_ends():
     replay_diff = benchscripts.load("replay_diff")
-    settled = np.zeros((ENVS, 15))
-    settled[:, 10] = 0.01  # the cubes' rest height
+    cube_rest = np.zeros((ENVS, 7))
+    cube_rest[:, 2] = 0.01  # the cubes' rest height
     joints = np.zeros((STEPS, ENVS, JOINTS))
     theirs = joints.copy()
     theirs[:, 0, 1] = [0.01, 0.02, 0.03, 0.04]  # env 0: the shoulder drifts apart
@@ -23,7 +23,8 @@ def test_the_joints_are_compared_until_either_side_s_episode_ends():
     mjlab_ended[1, 1] = True
     cubes = np.zeros((STEPS, ENVS, 3))
     cubes[-1, :, 2] = [0.1, 0.05]
-    lab = {"settled": settled, "joints": joints, "cubes": cubes, "ended": ended}
+    lab = {"settled_joints": np.zeros((ENVS, JOINTS)), "cube_rest": cube_rest,
+           "joints": joints, "cubes": cubes, "ended": ended}
     mjlab = {"settled_joints": np.full((ENVS, JOINTS), 0.002), "joints": theirs,
              "cubes": cubes - 0.01, "ended": mjlab_ended}
     row = replay_diff.compare(lab, mjlab)

@@ -12,6 +12,7 @@ import torch
 ARM = [f"joint{i}" for i in range(1, 7)]
 # The cube's free joint after the arm's 6 joints and 2 fingers: position, then orientation.
 CUBE_POS, CUBE_QUAT = slice(8, 11), slice(11, 15)
+SETTLE_STEPS = 25  # env steps for a cube dropped from up to 3 cm to come to rest
 
 
 def pinch_down_at(model: mujoco.MjModel, qpos: np.ndarray, pos: np.ndarray,
@@ -63,7 +64,7 @@ def holding(model: mujoco.MjModel, qpos: np.ndarray) -> np.ndarray:
 
 def settle(env) -> None:
     """The cubes, dropped from up to 3 cm at reset, come to rest on the floor."""
-    for _ in range(25):
+    for _ in range(SETTLE_STEPS):
         env.step(torch.zeros(env.num_envs, 7, device=env.sim.qpos.device))
 
 
