@@ -22,7 +22,7 @@ class TaskConfig(BaseModel):
     # The keys a resume may change: how many envs step (they start new episodes) and how; not
     # the task itself (rewards, episodes, physics), which the checkpoint was trained on.
     resumable: ClassVar[frozenset[str]] = frozenset({"num_envs", "threads", "cuda_graph",
-                                                     "compile"})
+                                                     "compile", "stagger_episodes"})
     # What `lab play` sets unless the user sets it (e.g. observation noise off).
     play_overrides: ClassVar[dict[str, Any]] = {}
     # Dotted keys `lab play --set` may change besides those: conditions to test a policy under
@@ -34,6 +34,14 @@ class TaskConfig(BaseModel):
     num_envs: int = Field(64, gt=0, le=2**20, description="parallel environments")
     episode_length_s: float = Field(5.0, gt=0, le=1e6, description="time-out, in seconds")
     decimation: int = Field(2, gt=0, le=1000, description="physics steps per env step")
+    # Isaac Lab's and mjlab's rsl_rl training (`init_at_random_ep_len`). Without it every env
+    # starts together, and where few episodes end early (an arm's) they time out together for
+    # the whole run: each rollout then holds one stretch of the episode only.
+    stagger_episodes: bool = Field(False, description="training: each env's first episode "
+                                   "starts at a random step before the time-out (drawn from "
+                                   "the env's seed), so that the envs' episodes do not run in "
+                                   "lockstep; `lab play` and a resumed run's saved episodes "
+                                   "never are")
     unstable_velocity: float = Field(UNSTABLE_VELOCITY, gt=0, description="a joint or the base "
                                      "faster than this (rad/s or m/s) ends the episode as "
                                      "diverged, as a non-finite state does: a runaway of the "

@@ -154,6 +154,7 @@ class LabVecEnv(gym.vector.VectorEnv):
         self._bad_action = torch.zeros(n, dtype=torch.bool, device=dev)
         self._renderer: SceneRenderer | None = None
         self._resume_state: dict[str, torch.Tensor] | None = None
+        self._staggered = False
         # On a GPU the step is host-bound when eager: it replays as one CUDA graph instead.
         self._graphed = (GraphedStep(self._step, self.rng.generators, f"the env step of task "
                                      f"'{spec.name}'")
@@ -192,6 +193,10 @@ class LabVecEnv(gym.vector.VectorEnv):
             self._stats.zero_()
         elif mask is None:
             self._reset_envs(self._all)
+            if self._staggered:
+                self._staggered = False
+                # In place: a GPU step's CUDA graph reads this tensor.
+                self.episode_length.copy_(self.rng.rand() * self.max_episode_length)
             self._stats.zero_()
         else:  # gymnasium's way to reset some envs only
             self._reset_envs(mask)
@@ -518,6 +523,11 @@ class LabVecEnv(gym.vector.VectorEnv):
         every library resets its env once before training, and a resumed run must go on from
         where the checkpoint left off, as if it had never stopped."""
         self._resume_state = state
+
+    def start_staggered(self) -> None:
+        """Make the next full `reset()` start each env's episode at a random step in [0, the
+        time-out) (`stagger_episodes`), as a fresh training run does."""
+        self._staggered = True
 
     # statistics ------------------------------------------------------------------------------
     def _accumulate(self, done: torch.Tensor, success: torch.Tensor, terminated: torch.Tensor,

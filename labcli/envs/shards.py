@@ -245,6 +245,9 @@ class _ShardEnd:
         self.obs.copy_(obs)
         self.env.critic_info(self.outputs.critic_obs)
 
+    def start_staggered(self) -> None:
+        self.env.start_staggered()
+
     def observations(self) -> None:
         self.obs.copy_(self.env.observations())
         self.env.critic_info(self.outputs.critic_obs)
@@ -560,6 +563,9 @@ class ShardedVecEnv(gym.vector.VectorEnv):
 
     def resume_from(self, state: dict[str, torch.Tensor]) -> None:
         self._resume_state = state
+
+    def start_staggered(self) -> None:
+        self._each("start_staggered")
 
     def __reduce__(self):
         # Worker processes do not pickle: a copy is built anew and put in this one's state.

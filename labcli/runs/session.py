@@ -177,6 +177,8 @@ class _Session:
             self._write_session(fw, env, run_, before)
         if resume_state is not None and resume_state["env"] is not None:
             env.resume_from(resume_state["env"])
+        elif getattr(env.cfg, "stagger_episodes", False):  # a gymnasium task has no such setting
+            env.start_staggered()
         if self.video is not None:  # no link planted on the way: videos go into the run dir
             files.real_dir(videos.folder(run_.dir, videos.TRAIN), below=run_.dir)
         pipeline = _pipeline(fw, plan.agent_cfg, self.video, run_.dir)
