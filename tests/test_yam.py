@@ -103,11 +103,10 @@ class _GraspRewards(YamLiftRewards):
 
 
 def test_the_scripted_grasp_holds_up_an_arm_whose_weight_is_not_compensated():
-    """Menagerie's YAM is weightless (gravity compensation): the servos' targets are the
-    joints' angles. Without it (mjlab's YAM) the servos sag under the arm's weight unless
-    their targets are raised by its gravity torques over their stiffness, and then the same
-    grasp lifts the cube."""
-    env = lift(2, "env.robot.gravity_compensation=false")
+    """yam-lift's YAM weighs on its servos (mjlab's): they sag under the arm's weight unless
+    their targets are raised by its gravity torques over their stiffness, and then the grasp
+    lifts the cube. With Menagerie's gravity compensation the targets are the joints' angles."""
+    env = lift(2)
     try:
         settle(env)
         home = env.task.robot.default_joint_pos[0, :6].double().numpy()
@@ -127,7 +126,7 @@ def test_the_scripted_grasp_holds_up_an_arm_whose_weight_is_not_compensated():
         assert (env.sim.qpos[:, CUBE_POS][:, 2].double() > REST + 0.08).all()
     finally:
         env.close()
-    env = lift(1)
+    env = lift(1, "env.robot.gravity_compensation=true")
     try:
         weightless = holding(env.sim.model, env.sim.qpos[0].double().numpy())
         assert np.abs(weightless).max() < 1e-9
@@ -299,10 +298,10 @@ def test_a_gripper_s_unclipped_targets_squeeze_the_cube_up_to_its_effort_limit(c
         env.close()
 
 
-def test_menagerie_s_gravity_compensation_of_the_yam_can_be_taken_off():
+def test_menagerie_s_gravity_compensation_of_the_yam_is_off_unless_asked_for():
     """Menagerie's YAM makes its links weightless (gravcomp 1), mjlab's copy does not:
-    `gravity_compensation` false takes it off every body of the robot, left out keeps it."""
-    for setting, weightless in (([], True), (["env.robot.gravity_compensation=false"], False)):
+    yam-lift takes it off every body of the robot, `gravity_compensation` true keeps it."""
+    for setting, weightless in (([], False), (["env.robot.gravity_compensation=true"], True)):
         env = lift(1, *setting)
         try:
             model = env.sim.model
