@@ -34,4 +34,7 @@ def test_a_setting_of_the_robot_shows_as_the_fields_it_changes(model_diff):
         "actuators on left_finger: ctrlrange None | [0.0, 0.041]"]
     assert free["actuators"]["on left_finger"]["forcerange"] == pytest.approx([-38.03, 38.03],
                                                                              abs=0.01)
-    assert free["bodies"]["link_2"]["gravcomp"] == 1.0
+    assert free["bodies"]["link_2"]["gravcomp"] == 0.0  # weighing, as mjlab's
+    weightless = model_diff.dump(model_diff.lab_model(
+        "yam-lift", ["env.robot.gravity_compensation=true"]))
+    assert "bodies link_2: gravcomp 0.0 | 1.0" in model_diff.compare(free, weightless)
