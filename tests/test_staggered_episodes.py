@@ -19,14 +19,6 @@ AT_REST = {"reset_cart_pos": (0.0, 0.0), "reset_pole_angle": (0.0, 0.0),
            "reset_cart_vel": (0.0, 0.0), "reset_pole_vel": (0.0, 0.0)}
 
 
-def cartpole(num_envs: int, shards: int | None = None, **cfg) -> LabVecEnv | ShardedVecEnv:
-    spec = registry.get_task("cartpole")
-    config = spec.config_class(num_envs=num_envs, **cfg)
-    if shards is None:
-        return LabVecEnv(spec, config, backend="cpu", seed=0)
-    return ShardedVecEnv(spec, config, seed=0, shards=shards)
-
-
 def staggered_start(env, seed: int) -> torch.Tensor:
     env.start_staggered()
     env.reset(seed=seed)
@@ -34,8 +26,8 @@ def staggered_start(env, seed: int) -> torch.Tensor:
 
 
 def test_each_env_s_first_episode_starts_at_a_random_step_and_ends_that_much_sooner():
-    env = cartpole(64, episode_length_s=STEPS * 0.02, **AT_REST)  # 0.02 s a step
-    twin = cartpole(64, episode_length_s=STEPS * 0.02, **AT_REST)
+    env = testing.make_env(64, episode_length_s=STEPS * 0.02, **AT_REST)  # 0.02 s a step
+    twin = testing.make_env(64, episode_length_s=STEPS * 0.02, **AT_REST)
     try:
         start = staggered_start(env, seed=1)
         assert env.max_episode_length == STEPS
@@ -56,7 +48,9 @@ def test_each_env_s_first_episode_starts_at_a_random_step_and_ends_that_much_soo
 
 
 def test_every_shard_staggers_its_envs_as_one_env_would():
-    sharded, one = cartpole(128, shards=2), cartpole(128)
+    spec = registry.get_task(testing.TASK)
+    sharded = ShardedVecEnv(spec, spec.config_class(num_envs=128), seed=0, shards=2)
+    one = testing.make_env(128)
     try:
         assert torch.equal(staggered_start(sharded, seed=3), staggered_start(one, seed=3))
     finally:
