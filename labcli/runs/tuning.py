@@ -17,6 +17,7 @@ from __future__ import annotations
 import logging
 import math
 import os
+import warnings
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -303,7 +304,11 @@ def fit(tuner: tune.Tuner) -> None:
     for logger in loggers:
         logger.addFilter(quiet)
     try:
-        tuner.fit()
+        with warnings.catch_warnings():
+            # A trial reports NaN until one of its episodes ends (Reporter); ASHA's cut-off
+            # skips NaN, and numpy warns when a rung holds nothing else.
+            warnings.filterwarnings("ignore", "All-NaN slice encountered", RuntimeWarning)
+            tuner.fit()
     finally:
         for logger in loggers:
             logger.removeFilter(quiet)
