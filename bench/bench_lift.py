@@ -3,7 +3,8 @@ in the same machine start:
 
   lab train --task yam-lift --framework rsl_rl --backend warp                    # lab
   train Mjlab-Lift-Cube-Yam --env.scene.num-envs 4096 --agent.logger tensorboard  # mjlab 1.6.0
-  python bench/bench_lift.py LAB_RUN_DIR MJLAB_RUN_DIR [--mjlab-envs 4096] [--json FILE]
+  python bench/bench_lift.py LAB_RUN_DIR [MJLAB_RUN_DIR] [--mjlab-envs 4096] [--at STEPS]
+                             [--json FILE]
 
 Prints each one's median training steps/s (the first two iterations, compilation and warm-up,
 left out) and lab's ratio to mjlab's (the goal: 3×); then two measures of success, each the
@@ -11,7 +12,9 @@ same on both sides: at the episode's end, the cube within 5 cm of its last targe
 success rate, mjlab's `at_goal`) and at any step since that target was drawn (lab's
 `reached`, mjlab's latched `episode_success`); for each, the steps after which it first
 reached 0.1, 0.5 and 0.7, and its value, with the cube's distance to its target, at the steps
-the shorter run reached. A run resumed over several sittings reads as one.
+the shorter run reached (or at `--at`: a run of lab beside one of mjlab measured before,
+e.g. its last step). Without mjlab's run, lab's figures alone. A run resumed over several
+sittings reads as one.
 """
 
 from __future__ import annotations
@@ -53,26 +56,30 @@ def _shown(value: float | None, form: str = ".3f") -> str:
     return "-" if value is None else format(value, form)
 
 
-def compare(lab_run: Path, mjlab_run: Path, mjlab_envs: int) -> dict:
-    ours, theirs = sittings(lab_run), sittings(mjlab_run)
-    per_iteration = mjlab_envs * STEPS_PER_ENV
-    series = {"lab": {key: joined(ours, lab) for key, (lab, _) in TAGS.items()},
-              "mjlab": {key: [(t, step * per_iteration, value)
-                              for t, step, value in joined(theirs, mjlab)]
-                        for key, (_, mjlab) in TAGS.items()}}
-    common = min(s["success"][-1][1] for s in series.values())
-    row = {"lab_run": str(lab_run), "mjlab_run": str(mjlab_run), "common_steps": common}
+def compare(lab_run: Path, mjlab_run: Path | None, mjlab_envs: int,
+            at: int | None = None) -> dict:
+    series = {"lab": {key: joined(sittings(lab_run), lab) for key, (lab, _) in TAGS.items()}}
+    if mjlab_run is not None:
+        theirs, per_iteration = sittings(mjlab_run), mjlab_envs * STEPS_PER_ENV
+        series["mjlab"] = {key: [(t, step * per_iteration, value)
+                                 for t, step, value in joined(theirs, mjlab)]
+                           for key, (_, mjlab) in TAGS.items()}
+    common = at if at is not None else min(s["success"][-1][1] for s in series.values())
+    row = {"lab_run": str(lab_run), "mjlab_run": str(mjlab_run) if mjlab_run else None,
+           "common_steps": common}
     for who, own in series.items():
         row[f"{who}_steps_per_s"] = _median_rate(own["steps_per_s"])
         for key in ("success", "reached", "error"):
             row[f"{who}_{key}"] = _at_step(own[key], common)
         for key in ("success", "reached"):
             row[f"{who}_{key}_first"] = {level: _first_step(own[key], level) for level in LEVELS}
-    ratio = (row["lab_steps_per_s"] / row["mjlab_steps_per_s"]
-             if row["lab_steps_per_s"] and row["mjlab_steps_per_s"] else None)
-    row["ratio"] = ratio
-    print(f"training steps/s: lab {row['lab_steps_per_s'] or 0:,.0f}, mjlab "
-          f"{row['mjlab_steps_per_s'] or 0:,.0f}: lab {ratio or 0:.2f}× mjlab's (goal 3×)")
+    rates = ", ".join(f"{who} {row[f'{who}_steps_per_s'] or 0:,.0f}" for who in series)
+    if "mjlab" in series:
+        ratio = (row["lab_steps_per_s"] / row["mjlab_steps_per_s"]
+                 if row["lab_steps_per_s"] and row["mjlab_steps_per_s"] else None)
+        rates += f": lab {ratio or 0:.2f}× mjlab's (goal 3×)"
+        row["ratio"] = ratio
+    print(f"training steps/s: {rates}")
     for key, name in (("success", "within 5 cm at the end"),
                       ("reached", "within 5 cm at any step since the target was drawn")):
         print(f"{name}:")
@@ -80,19 +87,22 @@ def compare(lab_run: Path, mjlab_run: Path, mjlab_envs: int) -> dict:
             firsts = ", ".join(f"{level} after {_shown(step, ',')}"
                                for level, step in row[f"{who}_{key}_first"].items())
             print(f"  {who:5} {firsts} steps; {_shown(row[f'{who}_{key}'])} after {common:,}")
-    print(f"the cube's distance to its target after {common:,} steps: lab "
-          f"{_shown(row['lab_error'])} m, mjlab {_shown(row['mjlab_error'])} m")
+    errors = ", ".join(f"{who} {_shown(row[f'{who}_error'])} m" for who in series)
+    print(f"the cube's distance to its target after {common:,} steps: {errors}")
     return row
 
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("lab_run", type=Path)
-    p.add_argument("mjlab_run", type=Path, help="a directory holding mjlab's events file(s)")
+    p.add_argument("mjlab_run", type=Path, nargs="?",
+                   help="a directory holding mjlab's events file(s); none: lab's figures alone")
     p.add_argument("--mjlab-envs", type=int, default=4096)
+    p.add_argument("--at", type=int, help="env steps at which to read the measures (default: "
+                   "the last step both runs reached)")
     p.add_argument("--json", type=Path, help="write the row here")
     a = p.parse_args()
-    row = compare(a.lab_run, a.mjlab_run, a.mjlab_envs)
+    row = compare(a.lab_run, a.mjlab_run, a.mjlab_envs, a.at)
     if a.json:
         a.json.write_text(json.dumps(row, indent=2))
 
