@@ -178,12 +178,23 @@ def test_runs_and_plot_from_the_command_line(tmp_path):
     assert row["state"] == "finished" and row["steps"] == 64 and row["framework"] == "sb3"
     table = lab("runs", "--state", "finished", logs=logs)
     assert "cartpole" in table.stdout and "finished" in table.stdout
+    assert f"1 run in {logs}" in table.stdout
     assert json.loads(lab("runs", "--json", "--state", "running", logs=logs).stdout) == []
     png = tmp_path / "curves.png"
     plotted = lab("plot", "-o", str(png), logs=logs)
     assert plotted.exit_code == 0 and png.stat().st_size > 10_000
     unknown = lab("plot", "--metric", "Train/nope", "-o", str(tmp_path / "x.png"), logs=logs)
     assert_one_line_error(unknown, "Train/nope", "Train/mean_reward")
+
+
+def test_a_table_piped_or_redirected_keeps_every_cell_whole(tmp_path):
+    """stdout not a terminal and no $COLUMNS (`lab list | grep g1`): each cell whole on its
+    line, where rich would fit the table to 80 columns; the user's $COLUMNS still rules."""
+    description = registry.get_task("g1-flat").description
+    assert len(description) > 80
+    piped = lab("list", logs=tmp_path, COLUMNS=None)
+    assert piped.exit_code == 0 and description in piped.stdout
+    assert description not in lab("list", logs=tmp_path, COLUMNS="80").stdout
 
 
 @pytest.mark.skipif(shutil.which("xvfb-run") is None, reason="needs Xvfb (apt-get install xvfb)")

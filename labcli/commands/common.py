@@ -3,6 +3,7 @@ completion of task and framework names, and table helpers."""
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
 
@@ -13,6 +14,8 @@ if TYPE_CHECKING:
     from rich.table import Column, Table
 
 
+PIPED_WIDTH = 1000  # columns of stdout when it is not a terminal and $COLUMNS is not set
+
 # Consoles are made where they print: completion, --help and --version print through typer and
 # need no rich, and each console reads the terminal's width then. No markup: what lab prints
 # quotes run dirs, paths and user input, in which rich would take '[...]' for markup and drop it
@@ -20,7 +23,12 @@ if TYPE_CHECKING:
 def out() -> Console:
     from rich.console import Console
 
-    return Console(markup=False)
+    console = Console(markup=False)
+    if not console.is_terminal and "COLUMNS" not in os.environ:
+        # Piped or redirected (`lab runs | grep finished`, `> runs.txt`), a table keeps every
+        # cell whole: rich would fit it to 80 columns and cut names and paths short.
+        console.width = PIPED_WIDTH
+    return console
 
 
 def err() -> Console:

@@ -48,7 +48,7 @@ def runs(
         return
     shown = table(Column("started", no_wrap=True), "task", "framework", "name", "steps",
                   "wall time", "return", "success", "best", Column("state", no_wrap=True),
-                  title=f"{len(rows)} runs in {logs_dir}")
+                  title=f"{len(rows)} run{'' if len(rows) == 1 else 's'} in {logs_dir}")
     for row, b in zip(rows, best, strict=True):
         shown.add_row(
             row.started.replace("T", " ")[:16], row.task, row.framework,
